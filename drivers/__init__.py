@@ -1,0 +1,1 @@
+"""Hardware interfaces and real-protocol drivers (ESP300, USB2000+, PTP camera)."""

@@ -1,0 +1,1 @@
+"""Fake devices speaking the real protocols on top of a simulated bench."""

@@ -1,0 +1,59 @@
+import numpy as np
+import pytest
+
+from gonio.geometry import to_vector
+from gonio.samples import BRDFSamples, read_samples
+
+
+def _table(spectral=False):
+    rng = np.random.default_rng(0)
+    n = 50
+    wi = to_vector(rng.uniform(0, 1.4, n), rng.uniform(-3, 3, n))
+    wo = to_vector(rng.uniform(0, 1.4, n), rng.uniform(-3, 3, n))
+    wl = rng.choice([450.0, 550.0], n) if spectral else None
+    return BRDFSamples.from_directions(
+        wi,
+        wo,
+        rng.random(n),
+        rng.random(n) * 0.01,
+        wavelength_nm=wl,
+        metadata={"material": "x", "seed": 1},
+    )
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+@pytest.mark.parametrize("spectral", [False, True])
+def test_roundtrip(tmp_path, suffix, spectral):
+    t = _table(spectral)
+    p = t.write(tmp_path / f"s{suffix}")
+    r = read_samples(p)
+    np.testing.assert_array_equal(r.to_array(), t.to_array())
+    assert r.metadata == t.metadata
+    np.testing.assert_allclose(r.wi, t.wi, atol=1e-15)
+
+
+def test_malformed_files(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,value\n0,0,0,0,1\n")
+    with pytest.raises(ValueError, match="missing column"):
+        read_samples(bad)
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,value,sigma\n0,0,0,0,abc,0\n")
+    with pytest.raises(ValueError, match="non-numeric"):
+        read_samples(bad)
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,value,sigma\n0,0,0,0,nan,0\n")
+    with pytest.raises(ValueError, match="non-finite"):
+        read_samples(bad)
+    z = tmp_path / "bad.npz"
+    z.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match=r"bad\.npz"):
+        read_samples(z)
+    with pytest.raises(ValueError, match="suffix"):
+        _table().write(tmp_path / "x.txt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "bad.npz"]  # no leftovers
+
+
+def test_validation():
+    with pytest.raises(ValueError, match="theta_i"):
+        BRDFSamples([2.0], [0], [0], [0], [1], [0.1])
+    with pytest.raises(ValueError, match="rows"):
+        BRDFSamples([0.1, 0.2], [0], [0], [0], [1], [0.1])
