@@ -1,5 +1,12 @@
 """Ward's isotropic and anisotropic (elliptical) Gaussian models.
 
+The values are computed by a numba kernel (compiled lazily on the first call, cached on disk)
+when numba is available and the inputs are plain float64 arrays of shape ``(N, 3)`` (or the
+same shape for both, or one direction against many); otherwise by the numpy reference
+:meth:`Ward._eval_numpy`. Both evaluate exactly the same expression in the same order (tests
+require agreement to 1e-13 relative). Set the environment variable ``GONIO_NO_NUMBA=1`` to
+force the numpy path.
+
 References
 ----------
 003_0632ad07325ce89d.txt (G. J. Ward, "Measuring and Modeling Anisotropic Reflection",
@@ -9,12 +16,20 @@ convenient approximation"), eq. 7 (sampling).
 
 from __future__ import annotations
 
-from typing import ClassVar
+import math
+import os
+from collections.abc import Callable
+from typing import Any, ClassVar
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from gonio._validate import as_directions
+from gonio.brdf._lobes import half_vector_albedo
 from gonio.brdf.base import BRDF, Param, register
+from gonio.geometry import cosine_hemisphere_pdf, square_to_hemisphere
+
+__all__ = ["Ward", "WardApprox", "half_vector_pdf", "kernel", "sample_half_vector"]
 
 _WARD_PARAMS = (
     Param("rho_d", 0.1, 0.0, 1.0, "1", "diffuse reflectance"),
@@ -24,6 +39,154 @@ _WARD_PARAMS = (
 )
 
 _WARD_ISSUES = ("albedo diverges at grazing incidence (001_84a7b2661ce0a5d4.txt §7.4, eq. 38-41)",)
+
+
+# --------------------------------------------------------------------------- numba kernels
+# Plain-Python bodies; numba.njit(cache=True, fastmath=False) compiles them on first use.
+# Each returns the number of rows holding a non-finite entry (x - x != 0 for NaN and ±inf).
+
+
+def _k_ward5a(wi, wo, out, kd, ks, ax2, ay2):  # pragma: no cover - compiled by numba
+    bad = 0
+    for k in range(out.shape[0]):
+        ix = wi[k, 0]
+        iy = wi[k, 1]
+        ci = wi[k, 2]
+        ox = wo[k, 0]
+        oy = wo[k, 1]
+        co = wo[k, 2]
+        if (ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co) != 0.0:
+            bad += 1
+        if ci > 0.0 and co > 0.0:
+            hx = ix + ox
+            hy = iy + oy
+            hz = ci + co
+            e = (hx * hx * ax2 + hy * hy * ay2) / (hz * hz)
+            out[k] = kd + ks * math.exp(-e) / math.sqrt(ci * co)
+        else:
+            out[k] = 0.0
+    return bad
+
+
+def _k_ward5b(wi, wo, out, kd, ks, ax2, ay2):  # pragma: no cover - compiled by numba
+    bad = 0
+    for k in range(out.shape[0]):
+        ix = wi[k, 0]
+        iy = wi[k, 1]
+        ci = wi[k, 2]
+        ox = wo[k, 0]
+        oy = wo[k, 1]
+        co = wo[k, 2]
+        if (ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co) != 0.0:
+            bad += 1
+        if ci > 0.0 and co > 0.0:
+            hx = ix + ox
+            hy = iy + oy
+            hz = ci + co
+            n2 = hx * hx + hy * hy + hz * hz
+            n = math.sqrt(n2)
+            e = 2.0 * (hx * hx * ax2 + hy * hy * ay2) / (n2 * (1.0 + hz / n))
+            out[k] = kd + ks * math.exp(-e) / math.sqrt(ci * co)
+        else:
+            out[k] = 0.0
+    return bad
+
+
+def _k_ward_neumann(wi, wo, out, kd, ks, ax2, ay2):  # pragma: no cover - compiled by numba
+    bad = 0
+    for k in range(out.shape[0]):
+        ix = wi[k, 0]
+        iy = wi[k, 1]
+        ci = wi[k, 2]
+        ox = wo[k, 0]
+        oy = wo[k, 1]
+        co = wo[k, 2]
+        if (ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co) != 0.0:
+            bad += 1
+        if ci > 0.0 and co > 0.0:
+            hx = ix + ox
+            hy = iy + oy
+            hz = ci + co
+            e = (hx * hx * ax2 + hy * hy * ay2) / (hz * hz)
+            out[k] = kd + ks * math.exp(-e) / max(ci, co)
+        else:
+            out[k] = 0.0
+    return bad
+
+
+_KERNEL_SOURCES: dict[str, Callable] = {
+    "ward": _k_ward5a,
+    "ward_approx": _k_ward5b,
+    "ward_neumann": _k_ward_neumann,
+}
+_KERNELS: dict[str, Any] = {}
+
+
+def kernel(name: str) -> Any:
+    """The compiled numba kernel ``name`` or ``None`` (numba missing or ``GONIO_NO_NUMBA``).
+
+    Compilation is lazy: importing :mod:`gonio.brdf` does not import numba.
+    """
+    if name in _KERNELS:
+        return _KERNELS[name]
+    k = None
+    if not os.environ.get("GONIO_NO_NUMBA") and name in _KERNEL_SOURCES:
+        try:
+            import numba
+        except ImportError:  # pragma: no cover - numba is a declared dependency
+            numba = None
+        if numba is not None:
+            k = numba.njit(cache=True, fastmath=False, nogil=True)(_KERNEL_SOURCES[name])
+    _KERNELS[name] = k
+    return k
+
+
+# --------------------------------------------------------------------------- eq. 7 sampling
+
+
+def sample_half_vector(
+    alpha_x: float, alpha_y: float, u1: ArrayLike, u2: ArrayLike
+) -> NDArray[np.float64]:
+    r"""Half vectors distributed as Ward's eq. 7, from uniform ``u1 ∈ (0, 1]``, ``u2 ∈ [0, 1)``.
+
+    Eq. 7b: ``φ = atan[(α_y/α_x) tan(2π u2)]`` kept in the quadrant of ``2π u2`` (computed
+    as ``atan2(α_y sin 2πu2, α_x cos 2πu2)``, as the paper's note requires). Eq. 7a gives
+    the radial coordinate ``[−log u1 / (cos²φ/α_x² + sin²φ/α_y²)]^{1/2}``; it is used as
+    ``tan δ`` (not δ): that is the distribution whose density is proportional to the eq. 5a
+    exponential, :func:`half_vector_pdf`. (Read literally as δ, the printed eq. 7a samples
+    a Gaussian in δ that only agrees with eq. 5a to first order in δ and can put the half
+    vector below the horizon; B. Walter, "Notes on the Ward BRDF", 2005, makes the same
+    correction.)
+
+    References
+    ----------
+    003_0632ad07325ce89d.txt eq. 7a, 7b.
+    """
+    u1 = np.asarray(u1, dtype=np.float64)
+    t = 2.0 * np.pi * np.asarray(u2, dtype=np.float64)
+    phi = np.arctan2(alpha_y * np.sin(t), alpha_x * np.cos(t))
+    cp, sp = np.cos(phi), np.sin(phi)
+    a = cp * cp / (alpha_x * alpha_x) + sp * sp / (alpha_y * alpha_y)
+    tan2 = -np.log(u1) / a
+    cd = 1.0 / np.sqrt(1.0 + tan2)
+    sd = np.sqrt(tan2) * cd
+    return np.stack([sd * cp, sd * sp, cd], axis=-1)
+
+
+def half_vector_pdf(h: ArrayLike, alpha_x: float, alpha_y: float) -> NDArray[np.float64]:
+    r"""Solid-angle density of :func:`sample_half_vector` at unit ``h``.
+
+    .. math:: p_h = \frac{\exp[-\tan^2\delta(\cos^2\phi/\alpha_x^2+\sin^2\phi/\alpha_y^2)]}
+                         {\pi\alpha_x\alpha_y\cos^3\delta}
+
+    It integrates to exactly 1 over the upper hemisphere; 0 for ``h_z ≤ 0``.
+    """
+    h = np.asarray(h, dtype=np.float64)
+    hz = h[..., 2]
+    up = hz > 0.0
+    z = np.where(up, hz, 1.0)
+    e = (h[..., 0] ** 2 / alpha_x**2 + h[..., 1] ** 2 / alpha_y**2) / (z * z)
+    return np.where(up, np.exp(-e) / (np.pi * alpha_x * alpha_y * z**3), 0.0)
 
 
 @register
@@ -45,6 +208,15 @@ class Ward(BRDF):
     alpha_x, alpha_y : float
         Standard deviation of the surface slope along x and y (radians ≈ slope).
 
+    Notes
+    -----
+    :meth:`sample` draws the half vector from eq. 7 (see :func:`sample_half_vector`) with
+    probability ``rho_s/(rho_d + rho_s)`` and a cosine-weighted direction otherwise; the
+    returned pdf is the exact mixture density per solid angle of ``wi``
+    (``p_h/(4 h·wo)`` for the specular part), 0 for samples below the horizon. The albedo
+    (not analytic) is a half-vector quadrature with exact horizon limits, converged to
+    ``rtol``; it diverges at grazing incidence (Neumann §7.2, §7.4).
+
     References
     ----------
     003_0632ad07325ce89d.txt eq. 4, 5a; sampling eq. 7a-7b.
@@ -56,6 +228,7 @@ class Ward(BRDF):
     SUMMARY = "Ward anisotropic elliptical Gaussian"
     ENERGY_CONSERVING = False
     KNOWN_ISSUES = _WARD_ISSUES
+    _KERNEL: ClassVar[str | None] = "ward"
 
     def _setup(self) -> None:
         p = self._params
@@ -67,7 +240,8 @@ class Ward(BRDF):
     def _exponent(self, hx: NDArray, hy: NDArray, hz: NDArray) -> NDArray:
         return (hx * hx * self._ax2 + hy * hy * self._ay2) / (hz * hz)
 
-    def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
+    def _eval_numpy(self, wi: NDArray, wo: NDArray) -> NDArray:
+        """Reference numpy evaluation of eq. 5a."""
         ci = wi[..., 2]
         co = wo[..., 2]
         up = (ci > 0.0) & (co > 0.0)
@@ -78,6 +252,102 @@ class Ward(BRDF):
         spec = self._ks * np.exp(-self._exponent(hx, hy, hz)) / np.sqrt(cc)
         return np.where(up, self._kd + spec, 0.0)
 
+    def _fast(self, wi: Any, wo: Any) -> tuple[NDArray, int] | None:
+        """Kernel evaluation for plain float64 arrays, else ``None``: ``(values, n_bad)``."""
+        if type(wi) is not np.ndarray or type(wo) is not np.ndarray:
+            return None
+        if wi.dtype != np.float64 or wo.dtype != np.float64:
+            return None
+        if wi.ndim == 0 or wi.shape[-1] != 3 or wo.ndim == 0 or wo.shape[-1] != 3:
+            return None
+        if wi.shape == wo.shape:
+            shape = wi.shape[:-1]
+            if wi.ndim != 2:
+                if not (wi.flags.c_contiguous and wo.flags.c_contiguous):
+                    return None
+                wi = wi.reshape(-1, 3)
+                wo = wo.reshape(-1, 3)
+        elif wi.ndim == 2 and wo.ndim == 1:
+            shape = wi.shape[:-1]
+            wo = np.broadcast_to(wo, wi.shape)
+        elif wo.ndim == 2 and wi.ndim == 1:
+            shape = wo.shape[:-1]
+            wi = np.broadcast_to(wi, wo.shape)
+        else:
+            return None
+        k = kernel(self._KERNEL) if self._KERNEL else None
+        if k is None:
+            return None
+        out = np.empty(wi.shape[0], dtype=np.float64)
+        bad = k(wi, wo, out, self._kd, self._ks, self._ax2, self._ay2)
+        return out.reshape(shape), bad
+
+    def __call__(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
+        """BRDF value f_r(wi, wo) in sr⁻¹ (fast path through the numba kernel)."""
+        res = self._fast(wi, wo)
+        if res is None:
+            return super().__call__(wi, wo)
+        out, bad = res
+        if bad:
+            as_directions(wi, "wi")
+            as_directions(wo, "wo")
+        return out
+
+    def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
+        res = self._fast(wi, wo)
+        return self._eval_numpy(wi, wo) if res is None else res[0]
+
+    # -- albedo
+    def _quadrature_albedo(self, wi: NDArray, rtol: float, max_level: int = 5) -> Any:
+        if wi[2] <= 0.0:
+            return 0.0
+        p = self._params
+        width = min(p["alpha_x"], p["alpha_y"])
+        prev = None
+        nodes = 16
+        for _ in range(max_level):
+            est = half_vector_albedo(self._eval_numpy, wi, width, True, nodes)
+            if prev is not None:
+                diff = abs(float(est) - float(prev))
+                if diff <= rtol * abs(float(est)) or diff <= 1e-14:
+                    return float(est)
+            prev, nodes = est, 2 * nodes
+        return float(est)
+
+    # -- sampling, eq. 7
+    def _weights(self) -> tuple[float, float]:
+        p = self._params
+        return p["rho_d"], p["rho_s"]
+
+    def _sample(self, wo: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+        p = self._params
+        shape = wo.shape[:-1]
+        u = rng.random((3,) + shape)
+        h = sample_half_vector(p["alpha_x"], p["alpha_y"], 1.0 - u[0], u[1])
+        hw = np.einsum("...k,...k->...", h, wo)
+        spec = 2.0 * hw[..., None] * h - wo
+        diff = square_to_hemisphere(u[0], u[1], cosine=True)
+        wd, ws = self._weights()
+        frac_d = wd / (wd + ws) if wd + ws > 0.0 else 1.0
+        wi = np.where((u[2] < frac_d)[..., None], diff, spec)
+        return wi, self._pdf(wo, wi)
+
+    def _pdf(self, wo: NDArray, wi: NDArray) -> NDArray:
+        p = self._params
+        wo, wi = np.broadcast_arrays(wo, wi)
+        up = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+        h = wi + wo
+        hn = np.linalg.norm(h, axis=-1)
+        h = h / np.where(up, hn, 1.0)[..., None]
+        hw = np.einsum("...k,...k->...", h, wi)
+        ps = half_vector_pdf(h, p["alpha_x"], p["alpha_y"]) / (4.0 * np.where(up, hw, 1.0))
+        wd, ws = self._weights()
+        if wd + ws > 0.0:
+            pdf = (wd * cosine_hemisphere_pdf(wi) + ws * ps) / (wd + ws)
+        else:
+            pdf = cosine_hemisphere_pdf(wi)
+        return np.where(up, pdf, 0.0)
+
 
 @register
 class WardApprox(Ward):
@@ -85,7 +355,8 @@ class WardApprox(Ward):
 
     Exponent ``-2 [(ĥ·x/α_x)² + (ĥ·y/α_y)²] / (1 + ĥ·n)`` with the normalised half vector.
     It agrees with eq. 5a to second order in δ (``2/(1 + cos δ)`` replaces ``1/cos² δ``) and
-    departs from it at large half-angles.
+    departs from it at large half-angles. Sampling uses eq. 7 as for ``ward`` (its pdf is
+    exact for the sampled distribution, which follows eq. 5a rather than eq. 5b).
 
     References
     ----------
@@ -95,6 +366,7 @@ class WardApprox(Ward):
     name: ClassVar[str] = "ward_approx"
     REFERENCE = "003_0632ad07325ce89d.txt eq. 5b"
     SUMMARY = "Ward eq. 5b approximation of the elliptical Gaussian"
+    _KERNEL = "ward_approx"
 
     def _exponent(self, hx: NDArray, hy: NDArray, hz: NDArray) -> NDArray:
         n2 = hx * hx + hy * hy + hz * hz

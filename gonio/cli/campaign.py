@@ -1,0 +1,117 @@
+"""``gonio campaign``: run a simulated measurement campaign end to end (the main job)."""
+
+from __future__ import annotations
+
+import math
+
+from gonio.cli._common import add_json_option, write_json
+
+COMMAND = "campaign"
+HELP = "capture, reduce, fit and report a material on the simulated LBL instrument"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--material", default="rolled_brass", help="material preset")
+    parser.add_argument("--model", default=None, help="model to fit (default: the preset's)")
+    parser.add_argument(
+        "--mirror", default="ellipsoid", choices=["ellipsoid", "hemisphere"], help="LBL dome"
+    )
+    parser.add_argument(
+        "--angles",
+        default=None,
+        metavar="DEG",
+        help="incidence angles: 'START:STOP:N' (inclusive) or 'a,b,c' (default 0:80:21)",
+    )
+    parser.add_argument(
+        "--rotations",
+        default=None,
+        metavar="DEG",
+        help="sample rotations 'a,b' (default 0,90 for anisotropic materials, else 0)",
+    )
+    parser.add_argument(
+        "--compare",
+        default=None,
+        metavar="M1,M2",
+        help="other models fitted to the same samples ('' for none)",
+    )
+    parser.add_argument("--noise", default="on", help="off, on, or a factor (default on)")
+    parser.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    parser.add_argument(
+        "--residual",
+        default="absolute",
+        choices=["absolute", "relative", "log", "li_torrance"],
+        help="fit residual",
+    )
+    parser.add_argument("--out", default=None, metavar="DIR", help="results directory")
+    parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars, no table")
+    add_json_option(parser)
+
+
+def parse_angles(text: str, option: str = "--angles") -> tuple[float, ...]:
+    """'0:80:21' (inclusive, N values) or '0,10,20' -> angles in degrees."""
+    text = text.strip()
+    try:
+        if ":" in text:
+            a, b, n = text.split(":")
+            n = int(n)
+            if n < 1:
+                raise ValueError
+            if n == 1:
+                return (float(a),)
+            step = (float(b) - float(a)) / (n - 1)
+            return tuple(float(a) + k * step for k in range(n))
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+        if not vals:
+            raise ValueError
+        return vals
+    except ValueError:
+        raise ValueError(
+            f"{option} {text!r}: expected 'START:STOP:N' or a comma-separated list of degrees"
+        ) from None
+
+
+def parse_noise(text: str) -> float:
+    """'off' -> 0, 'on' -> 1, a number -> that factor."""
+    t = str(text).strip().lower()
+    if t == "off":
+        return 0.0
+    if t == "on":
+        return 1.0
+    try:
+        v = float(t)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and v >= 0):
+        raise ValueError(f"--noise {text!r}: expected off, on or a factor >= 0")
+    return v
+
+
+def run(args) -> int:
+    from gonio import campaign
+
+    kw = dict(
+        material=args.material,
+        model=args.model,
+        mirror=args.mirror,
+        noise=parse_noise(args.noise),
+        seed=args.seed,
+        residual=args.residual,
+        plots=not args.no_plots,
+    )
+    if args.angles is not None:
+        kw["theta_i_deg"] = parse_angles(args.angles)
+    if args.rotations is not None:
+        kw["rotations_deg"] = parse_angles(args.rotations, "--rotations")
+    if args.compare is not None:
+        kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
+    plan = campaign.Plan(**kw)
+    out = args.out or f"campaign_{args.material}_seed{args.seed}"
+    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet)
+    if not args.quiet:
+        print(campaign.summary_table(res.summary))
+        print(f"results in {res.out}")
+    if args.json:
+        write_json(args.json, res.summary)
+    return 0 if res.summary["converged"] else 1

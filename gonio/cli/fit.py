@@ -1,0 +1,93 @@
+"""``gonio fit``: fit a reflectance model to a samples file (CSV or NPZ)."""
+
+from __future__ import annotations
+
+from gonio.cli._common import add_json_option, format_table, write_json
+
+COMMAND = "fit"
+HELP = "fit a BRDF model (or a sum 'lambert + ward') to a samples file"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("samples", help="samples table (.csv or .npz)")
+    parser.add_argument(
+        "--model", default="ward", help="model name or sum, e.g. 'lambert + ward' (default ward)"
+    )
+    parser.add_argument(
+        "--residual",
+        default="absolute",
+        choices=["absolute", "relative", "log", "li_torrance"],
+        help="misfit of one sample (default absolute; weighted by sigma when known)",
+    )
+    parser.add_argument(
+        "--fixed",
+        action="append",
+        default=[],
+        metavar="NAME[=VALUE]",
+        help="hold a parameter (at VALUE, or at its start); repeatable",
+    )
+    parser.add_argument(
+        "--init", action="append", default=[], metavar="NAME=VALUE", help="start value; repeatable"
+    )
+    parser.add_argument(
+        "--per-band",
+        default=None,
+        metavar="A,B",
+        help="grey model on spectral data: parameters fitted per band (default the rho's)",
+    )
+    parser.add_argument("--starts", type=int, default=None, help="extra random starts")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    add_json_option(parser)
+
+
+def _pairs(items: list[str], option: str, need_value: bool) -> dict:
+    out: dict = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        name = name.strip()
+        if not name or (need_value and not sep):
+            raise ValueError(f"{option} {it!r}: expected NAME=VALUE")
+        if sep:
+            try:
+                out[name] = float(val)
+            except ValueError:
+                raise ValueError(f"{option} {it!r}: value {val!r} is not a number") from None
+        else:
+            out[name] = None
+    return out
+
+
+def run(args) -> int:
+    from gonio import fit
+    from gonio.samples import read_samples
+
+    samples = read_samples(args.samples)
+    fixed = _pairs(args.fixed, "--fixed", need_value=False)
+    init = _pairs(args.init, "--init", need_value=True)
+    per_band = None
+    if args.per_band is not None:
+        per_band = [p.strip() for p in args.per_band.split(",") if p.strip()]
+    r = fit.fit(
+        samples,
+        args.model,
+        residual=args.residual,
+        fixed=fixed or None,
+        init=init or None,
+        per_band=per_band,
+        n_starts=args.starts,
+        rng=args.seed,
+    )
+    rows = [
+        (k, v, r.stderr[k], "fixed" if k in r.fixed else ("bound" if k in r.at_bounds else ""))
+        for k, v in r.params.items()
+    ]
+    print(format_table(("parameter", "value", "stderr", ""), rows))
+    print(
+        f"{r.model_name}: {'converged' if r.converged else 'NOT converged'}; "
+        f"n = {r.n_samples}, rms = {r.rms:.4g} sr^-1, chi2/dof = {r.chi2_dof:.4g}"
+    )
+    if args.json:
+        d = r.to_dict()
+        d["samples"] = str(args.samples)
+        write_json(args.json, d)
+    return 0 if r.converged else 1

@@ -1,0 +1,123 @@
+"""``gonio sweep SPEC``: run a grid of campaigns in-process, on local processes or on Dask."""
+
+from __future__ import annotations
+
+import sys
+
+from gonio.cli._common import add_json_option, format_table, write_json
+
+COMMAND = "sweep"
+HELP = "run a grid of campaigns (materials × settings × seeds) and gather one results table"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("spec", help="sweep spec file (.toml or .json)")
+    parser.add_argument(
+        "-o",
+        "--out",
+        metavar="DIR",
+        help="results folder (default: sweep_<name> in the current folder); re-running into "
+        "the same folder skips finished tasks",
+    )
+    ex = parser.add_mutually_exclusive_group()
+    ex.add_argument(
+        "--processes",
+        metavar="N",
+        type=int,
+        help="run on N local worker processes (concurrent.futures)",
+    )
+    ex.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on an existing Dask distributed scheduler, e.g. tcp://host:8786 "
+        "(needs gonio[distributed])",
+    )
+    ex.add_argument(
+        "--dask-local",
+        metavar="N",
+        type=int,
+        help="start a Dask LocalCluster of N worker processes (needs gonio[distributed])",
+    )
+    parser.add_argument(
+        "--retries", type=int, default=2, help="retries of a failed task (default 2)"
+    )
+    parser.add_argument("--no-plot", action="store_true", help="do not write summary.png")
+    parser.add_argument(
+        "--dry-run", action="store_true", help="validate the spec and list the tasks only"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="no per-task progress lines")
+    add_json_option(parser)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from gonio import sweep
+
+    spec = sweep.load_spec(args.spec)
+    if args.processes is not None and args.processes < 1:
+        raise ValueError(f"--processes must be >= 1, got {args.processes}")
+    if args.dask_local is not None and args.dask_local < 1:
+        raise ValueError(f"--dask-local must be >= 1, got {args.dask_local}")
+    tasks = sweep.expand(spec)
+    if args.dry_run:
+        rows = [(sweep.task_id(t), t["material"], t["seed"], t["settings"] or "") for t in tasks]
+        print(format_table(("task", "material", "seed", "settings"), rows))
+        print(f"{len(tasks)} task(s) of {spec.task!r}")
+        return 0
+    if args.scheduler or args.dask_local:
+        executor = "dask"
+    elif args.processes:
+        executor = "process"
+    else:
+        executor = "inprocess"
+    out = Path(args.out) if args.out else Path(f"sweep_{spec.name}")
+    done = [0]
+
+    def progress(res: dict) -> None:
+        done[0] += 1
+        if args.quiet:
+            return
+        if "error" in res:
+            state = f"FAILED {res['error']}"
+        elif res.get("skipped"):
+            state = "done earlier, skipped"
+        else:
+            state = f"{res['wall_s']:.2f} s"
+        print(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}", file=sys.stderr)
+
+    failed = None
+    try:
+        result = sweep.run_sweep(
+            spec,
+            out,
+            executor=executor,
+            workers=args.processes,
+            scheduler=args.scheduler,
+            dask_local=args.dask_local,
+            retries=args.retries,
+            plot=not args.no_plot,
+            progress=progress,
+        )
+    except sweep.TaskFailed as exc:
+        failed, result = exc, exc.result
+    agg = sweep.aggregate(result.rows, spec)
+    if agg:
+        metric = sweep._headline_metric(spec, result.rows)
+        keys = ["material", *spec.settings, "n"]
+        cols = keys + ([f"{metric}_mean", f"{metric}_std"] if metric else [])
+        print(format_table(cols, [[a.get(c, "") for c in cols] for a in agg]))
+    print(
+        f"{len(result.rows)}/{len(tasks)} task(s) done ({result.n_run} run, "
+        f"{result.n_skipped} skipped) on {executor} in {result.wall_s:.2f} s"
+        + (f" (of which {result.startup_s:.2f} s cluster start-up)" if result.startup_s else "")
+        + f"; results in {out}"
+    )
+    if args.json:
+        doc = result.to_dict()
+        doc["failures"] = failed.failures if failed else {}
+        write_json(args.json, doc)
+    if failed:
+        print(f"gonio sweep: {failed}", file=sys.stderr)
+        return 1
+    return 0

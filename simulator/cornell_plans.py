@@ -1,0 +1,343 @@
+"""Sampling plans of the Cornell instrument, their ordering and run-time estimate.
+
+* Incidence-plane plans (θi = 15°, 30°, 45°, 60°, 75°; 40-70 points per scan, denser near the
+  specular direction) and hemispherical plans (θi = 10°…80° step 10°, 441 positions per θi,
+  uniform in solid angle through the Shirley-Chiu map), as in 000_f6f2403beaa91ee8.txt §5.1.
+* User plans from a CSV file with degree columns ``theta_i, phi_i, theta_o, phi_o``.
+* Ordering: greedy nearest neighbour in move time (axes move together, so a move lasts as long
+  as its slowest axis) followed by 2-opt passes within each θi block.
+* Run-time estimate of the real instrument from stage speeds, settling, integration times and
+  overheads (:class:`Timing`), to compare with the paper's "about 11 hours for full
+  hemispherical sampling".
+
+The hemispherical grid is ``gonio.geometry.uniform_hemisphere_grid(21)``: 441 Shirley-Chiu cell
+centres of equal solid angle 2π/441; its outermost cells sit at θ = 84.6° (``cos θ = 1 −
+(20/21)²``), inside the instrument's 85°. ``cap_deg`` optionally maps the same cells uniformly
+onto a smaller cap (``cos θ = 1 − r²(1 − cos cap)``, still equal-area).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gonio.geometry import shirley_chiu_square_to_disk, to_vector, uniform_hemisphere_grid
+from gonio.simulator.cornell_kinematics import Kinematics, inverse
+
+__all__ = [
+    "Plan",
+    "Timing",
+    "estimate_run_time",
+    "hemispherical_plan",
+    "incidence_plane_plan",
+    "order_plan",
+    "read_plan_csv",
+]
+
+
+@dataclass
+class Timing:
+    """Speeds and overheads of the real instrument (assumed values; the paper gives none).
+
+    Speeds in rad/s (arm, turntable, tilt), acceleration in rad/s², times in s.
+    """
+
+    speeds: tuple[float, float, float] = tuple(np.radians([5.0, 10.0, 10.0]))
+    acceleration: tuple[float, float, float] = tuple(np.radians([10.0, 20.0, 20.0]))
+    settle_s: float = 0.5
+    polarizer_change_s: float = 1.5
+    read_overhead_s: float = 0.15
+    preview_s: float = 0.01
+    default_integration_s: float = 1.0
+
+    def move_time(self, delta: NDArray) -> NDArray:
+        """Trapezoidal-profile time of a move by ``delta`` (…, 3) rad; axes move together."""
+        d = np.abs(np.asarray(delta, dtype=np.float64))
+        v = np.asarray(self.speeds)
+        a = np.asarray(self.acceleration)
+        d_acc = v * v / a  # distance to reach full speed and stop again
+        t = np.where(d < d_acc, 2.0 * np.sqrt(d / a), d / v + v / a)
+        return np.max(t, axis=-1)
+
+
+@dataclass
+class Plan:
+    """A list of measurement geometries.
+
+    ``wi``, ``wo`` (N, 3): requested directions (sample frame); ``angles`` (N, 3): motor angles
+    (rad); ``reachable`` (N,); ``group`` (N,) int (index of the θi block); ``meta`` a dict.
+    """
+
+    wi: NDArray[np.float64]
+    wo: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    reachable: NDArray[np.bool_]
+    group: NDArray[np.int64]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.wi.shape[0]
+
+    def subset(self, idx: ArrayLike) -> Plan:
+        i = np.asarray(idx)
+        return Plan(
+            self.wi[i],
+            self.wo[i],
+            self.angles[i],
+            self.reachable[i],
+            self.group[i],
+            dict(self.meta),
+        )
+
+    def measurable(self) -> Plan:
+        """Only the reachable rows."""
+        return self.subset(np.flatnonzero(self.reachable))
+
+    @classmethod
+    def from_directions(
+        cls,
+        wi: ArrayLike,
+        wo: ArrayLike,
+        kin: Kinematics | None = None,
+        group: ArrayLike | None = None,
+        meta: dict | None = None,
+    ) -> Plan:
+        """Solve the inverse kinematics for requested directions."""
+        kin = kin or Kinematics()
+        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        res = inverse(wi, wo, kin)
+        g = np.zeros(len(wi), dtype=np.int64) if group is None else np.asarray(group, np.int64)
+        return cls(wi, wo, res.angles, res.reachable, g, dict(meta or {}))
+
+
+def _check_degrees(values: ArrayLike, name: str, lo: float, hi: float) -> NDArray:
+    v = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if v.ndim != 1 or not np.isfinite(v).all() or np.any((v < lo) | (v > hi)):
+        raise ValueError(f"{name} = {values!r}: expected degrees in [{lo}, {hi}]")
+    return v
+
+
+def incidence_plane_plan(
+    theta_i_deg: ArrayLike = (15, 30, 45, 60, 75),
+    *,
+    coarse_step_deg: float = 5.0,
+    fine_step_deg: float = 1.0,
+    fine_half_width_deg: float = 10.0,
+    kin: Kinematics | None = None,
+) -> Plan:
+    """Scans in the plane of incidence, denser near the specular direction (§5.1).
+
+    For each θi the viewing angle runs over −85°…85° (negative = the specular side, φo = π)
+    every ``coarse_step_deg``, plus every ``fine_step_deg`` within ``fine_half_width_deg`` of
+    the specular direction; points inside the retro-reflection cone or beyond the stages are
+    flagged unreachable. The defaults give 45-56 reachable points per scan.
+    """
+    kin = kin or Kinematics()
+    tis = _check_degrees(theta_i_deg, "theta_i_deg", 0.0, 89.0)
+    wi_all, wo_all, grp = [], [], []
+    lim = np.degrees(kin.theta_max)
+    for g, ti in enumerate(tis):
+        coarse = np.arange(-lim, lim + 1e-9, coarse_step_deg)
+        fine = np.arange(-fine_half_width_deg, fine_half_width_deg + 1e-9, fine_step_deg) - ti
+        s = np.unique(np.round(np.concatenate([coarse, fine[np.abs(fine) <= lim]]), 9))
+        wo = to_vector(np.radians(np.abs(s)), np.where(s < 0, np.pi, 0.0))
+        wi = np.broadcast_to(to_vector(np.radians(ti), 0.0), wo.shape)
+        wi_all.append(wi)
+        wo_all.append(wo)
+        grp.append(np.full(len(s), g))
+    return Plan.from_directions(
+        np.concatenate(wi_all),
+        np.concatenate(wo_all),
+        kin,
+        np.concatenate(grp),
+        {"kind": "incidence_plane", "theta_i_deg": tis.tolist()},
+    )
+
+
+def _cap_grid(n: int, cap_deg: float | None) -> NDArray:
+    if cap_deg is None:
+        return uniform_hemisphere_grid(n)
+    c = (np.arange(n) + 0.5) / n
+    u, v = np.meshgrid(c, c, indexing="ij")
+    x, y = shirley_chiu_square_to_disk(u.ravel(), v.ravel())
+    r2 = x * x + y * y
+    z = 1.0 - r2 * (1.0 - np.cos(np.radians(cap_deg)))
+    s = np.sqrt(np.clip(1.0 - z * z, 0.0, None)) / np.sqrt(np.where(r2 > 0, r2, 1.0))
+    return np.stack([x * s, y * s, z], axis=-1)
+
+
+def hemispherical_plan(
+    theta_i_deg: ArrayLike = (10, 20, 30, 40, 50, 60, 70, 80),
+    *,
+    n: int = 21,
+    cap_deg: float | None = None,
+    kin: Kinematics | None = None,
+) -> Plan:
+    """``n × n`` (441) viewing directions uniform in solid angle per θi (§5.1).
+
+    See the module docstring for ``cap_deg``. Rows in the retro-reflection cone are flagged
+    unreachable (a handful per θi).
+    """
+    kin = kin or Kinematics()
+    tis = _check_degrees(theta_i_deg, "theta_i_deg", 0.0, 89.0)
+    if int(n) != n or n < 1:
+        raise ValueError(f"n = {n!r}: expected a positive integer")
+    if cap_deg is not None:
+        _check_degrees(cap_deg, "cap_deg", 1.0, 90.0)
+    grid = _cap_grid(int(n), cap_deg)
+    wo = np.tile(grid, (len(tis), 1))
+    wi = np.repeat(to_vector(np.radians(tis), 0.0), len(grid), axis=0)
+    grp = np.repeat(np.arange(len(tis)), len(grid))
+    meta = {"kind": "hemispherical", "theta_i_deg": tis.tolist(), "n": int(n), "cap_deg": cap_deg}
+    return Plan.from_directions(wi, wo, kin, grp, meta)
+
+
+def read_plan_csv(path: str | os.PathLike, kin: Kinematics | None = None) -> Plan:
+    """A user plan: CSV with a header naming ``theta_i, phi_i, theta_o, phi_o`` (degrees).
+
+    Lines starting with ``#`` are comments. Rows are grouped by θi.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ValueError(f"plan file {path!r} does not exist")
+    with open(path, encoding="utf-8") as f:
+        rows = [r for r in csv.reader(line for line in f if not line.lstrip().startswith("#"))]
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise ValueError(f"{path}: empty plan file")
+    header = [c.strip() for c in rows[0]]
+    need = ["theta_i", "phi_i", "theta_o", "phi_o"]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; header is {header}")
+    try:
+        data = np.array([[float(r[header.index(c)]) for c in need] for r in rows[1:]])
+    except (ValueError, IndexError) as exc:
+        raise ValueError(f"{path}: malformed row ({exc})") from None
+    if data.size == 0:
+        raise ValueError(f"{path}: no rows")
+    if not np.isfinite(data).all():
+        raise ValueError(f"{path}: non-finite angle")
+    if np.any((data[:, [0, 2]] < 0) | (data[:, [0, 2]] > 90)):
+        raise ValueError(f"{path}: theta_i and theta_o must lie in [0, 90] degrees")
+    r = np.radians(data)
+    wi, wo = to_vector(r[:, 0], r[:, 1]), to_vector(r[:, 2], r[:, 3])
+    _, grp = np.unique(np.round(data[:, 0], 9), return_inverse=True)
+    return Plan.from_directions(wi, wo, kin, grp, {"kind": "file", "path": path})
+
+
+def order_plan(
+    plan: Plan,
+    timing: Timing | None = None,
+    *,
+    start: ArrayLike = (0.0, 0.0, 0.0),
+    two_opt_passes: int = 2,
+) -> Plan:
+    """Reorder the reachable rows to shorten the total move time (unreachable rows dropped).
+
+    θi blocks are measured one after the other (in plan order); within a block, greedy nearest
+    neighbour from the previous position (``start`` for the first), then ``two_opt_passes``
+    sweeps of 2-opt on the block's path (segment reversals that shorten it).
+    """
+    timing = timing or Timing()
+    p = plan.measurable()
+    if len(p) == 0:
+        return p
+    cur = np.asarray(start, dtype=np.float64)
+    pieces = []
+    for g in dict.fromkeys(p.group.tolist()):  # blocks in order of first appearance
+        rows = np.flatnonzero(p.group == g)
+        ang = p.angles[rows]
+        n = len(rows)
+        left = np.ones(n, bool)
+        order = np.empty(n, np.int64)
+        for k in range(n):
+            t = timing.move_time(ang - cur)
+            t[~left] = np.inf
+            j = int(np.argmin(t))
+            order[k] = j
+            left[j] = False
+            cur = ang[j]
+        order = _two_opt(ang, order, timing, two_opt_passes)
+        cur = ang[order[-1]]
+        pieces.append(rows[order])
+    out = p.subset(np.concatenate(pieces))
+    out.meta = {**p.meta, "ordered": True}
+    return out
+
+
+def _two_opt(ang: NDArray, order: NDArray, timing: Timing, passes: int) -> NDArray:
+    n = len(order)
+    if n < 4 or passes <= 0:
+        return order
+    order = order.copy()
+    for _ in range(passes):
+        improved = False
+        for i in range(1, n - 2):
+            a, b = ang[order[i - 1]], ang[order[i]]
+            c = ang[order[i + 1 : n - 1]]
+            d = ang[order[i + 2 : n]]
+            old = timing.move_time(b - a) + timing.move_time(d - c)
+            new = timing.move_time(c - a) + timing.move_time(d - b)
+            gain = old - new
+            j = int(np.argmax(gain))
+            if gain[j] > 1e-9:
+                jj = i + 1 + j
+                order[i : jj + 1] = order[i : jj + 1][::-1]
+                improved = True
+        if not improved:
+            break
+    return order
+
+
+def estimate_run_time(
+    plan: Plan,
+    timing: Timing | None = None,
+    integration_s: ArrayLike | None = None,
+    *,
+    start: ArrayLike = (0.0, 0.0, 0.0),
+) -> dict[str, float]:
+    """Estimated real-instrument time (s) for the reachable rows in the plan's order.
+
+    Per measurement: the move (slowest axis, trapezoidal profile), settling, a preview read for
+    the exposure, then for each of the two polarisations a polariser change, a dark read and a
+    signal read (integration time + read overhead each). ``integration_s`` gives one
+    integration time per reachable row (e.g. from a simulation's auto-exposure); default
+    ``timing.default_integration_s``.
+    """
+    timing = timing or Timing()
+    p = plan.measurable()
+    n = len(p)
+    if integration_s is None:
+        t_int = np.full(n, timing.default_integration_s)
+    else:
+        t_int = np.asarray(integration_s, dtype=np.float64).ravel()
+        if t_int.shape != (n,) or np.any(t_int <= 0) or not np.isfinite(t_int).all():
+            raise ValueError(
+                f"integration_s must hold {n} positive times (one per reachable row), "
+                f"got shape {t_int.shape}"
+            )
+    path = np.concatenate([np.asarray(start, float)[None], p.angles])
+    moves = timing.move_time(np.diff(path, axis=0))
+    per = (
+        timing.settle_s
+        + timing.preview_s
+        + timing.read_overhead_s
+        + 2.0 * (timing.polarizer_change_s + 2.0 * (t_int + timing.read_overhead_s))
+    )
+    total = float(moves.sum() + per.sum())
+    return {
+        "n_measurements": float(n),
+        "move_s": float(moves.sum()),
+        "integration_s": float(4.0 * t_int.sum()),
+        "overhead_s": float(per.sum() - 4.0 * t_int.sum()),
+        "total_s": total,
+        "total_h": total / 3600.0,
+        "per_measurement_s": total / max(n, 1),
+    }

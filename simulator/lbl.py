@@ -1,0 +1,1113 @@
+"""The LBL imaging gonioreflectometer (Ward 1992 §3), simulated.
+
+A collimated beam passes through the half-silvered dome and lights a spot on the sample;
+light the sample reflects in direction d̂_r is reflected by the dome into a fisheye lens on
+a CCD. One image therefore holds the whole hemisphere of reflected directions.
+
+Each capture is a function of (instrument, sample, θ_i, φ_i, exposure, f-number, seed).
+The per-instrument geometry — pixel → camera ray → mirror point → sample point and reflected
+direction — is traced exactly once and cached (:class:`Geometry`); a capture then costs one
+BRDF evaluation over the pixels that see the sample, a background fill and the ADC. Skipped
+when the scene does not need them: pixels outside the image circle or seeing no sample (never
+evaluated), pixels outside the beam footprint (rejected before the BRDF), spectral bands of a
+grey BRDF (:meth:`LBLInstrument.capture_bands` evaluates once), random draws when noise is off,
+f-stops adding no unsaturated pixel (:meth:`LBLInstrument.plan_bracket`), and the
+source-cone average when the lobe is much wider than the source.
+
+Radiometry (photon units, see :mod:`gonio.simulator.source`): a sample point lit by the beam
+(irradiance ``E`` normal to the beam, dome transmittance ``T``) reflects radiance
+``L = f_r(wi, wo) T E cos θ_i``; the dome reflects ``R_m L`` into the lens; a pixel collects
+``QE (1 + PRNU) (π / 4N²) p² R_m L t`` electrons (``p`` the pixel pitch). Background:
+``ambient · T`` over the image circle plus the glow where the beam crosses the dome, present
+with or without a sample. A mirror (delta) component of reflectance ρ_δ gives radiance
+``ρ_δ T E / Ω_s`` over the image of the source cone, rendered with sub-pixel sampling.
+
+Then eq. 2 holds: ``(V - V_bg)/(V_std - V_bg) · ρ_std/π = f_r`` at every lit pixel.
+
+References
+----------
+003_0632ad07325ce89d.txt §3 (device, Figure 2-4), eq. 2 (calibration against a diffuse
+standard and a background image), eq. 3 (angle recovery), "reduced ... to a resolution of
+108 by 80 pixels", "two or more f-stops may be used to capture the full dynamic range".
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gonio.simulator.lenses import LENS_MODELS, FisheyeLens, make_lens
+from gonio.simulator.optics import MIRRORS, Mirror
+from gonio.simulator.sensor import Sensor
+from gonio.simulator.source import Background, Source, cone_directions
+from numpy.typing import NDArray
+
+from gonio.brdf.base import BRDF, as_brdf
+
+__all__ = [
+    "STANDARD",
+    "WARD_BINNING",
+    "Geometry",
+    "LBLInstrument",
+    "capture",
+    "default_instrument",
+    "reproduce",
+]
+
+#: the ``sample`` value that images the diffuse reflectance standard
+STANDARD = "standard"
+#: Ward's reduced image size (width, height)
+WARD_BINNING = (108, 80)
+#: default f-stop ladder for bracketing (darkest first)
+F_STOPS = (32.0, 22.0, 16.0, 11.0, 8.0, 5.6, 4.0, 2.8, 2.0)
+
+
+# ---------------------------------------------------------------------------- geometry cache
+@dataclass
+class Geometry:
+    """Per-instrument traced geometry, computed once.
+
+    Flat pixel index ``i = row * width + col``. Arrays of the candidate pixels (inside the
+    image circle, ray returning to the sample plane within the sample disk) are contiguous.
+    """
+
+    height: int
+    width: int
+    field_idx: NDArray[np.int64]  # pixels inside the image circle
+    field_dirs: NDArray[np.float64]  # their camera (= dome) directions, (n_f, 3)
+    idx: NDArray[np.int64]  # candidate pixels (see the sample disk)
+    wx: NDArray[np.float64]  # dome-frame reflected direction of each candidate
+    wy: NDArray[np.float64]
+    wz: NDArray[np.float64]
+    qx: NDArray[np.float64]  # sample point seen, relative to the sample centre
+    qy: NDArray[np.float64]
+    isq: NDArray[np.float64]  # 1 / sqrt(cos theta_o) of each candidate
+    q_max: float  # largest |Q - S| among candidates
+    pixel_angle: float  # largest angular pitch between neighbouring candidate pixels
+    seconds: float  # time taken to build
+
+    @property
+    def n_pixels(self) -> int:
+        """Number of pixels of the full image."""
+        return self.height * self.width
+
+
+def _trace_geometry(mirror: Mirror, lens: FisheyeLens, sample_radius: float) -> Geometry:
+    t0 = time.perf_counter()
+    h, w = lens.height, lens.width
+    uv = lens.pixel_grid().reshape(-1, 2)
+    in_field = lens.in_field(uv)
+    field_idx = np.flatnonzero(in_field)
+    dirs = lens.unproject(uv[field_idx])
+    tr = mirror.trace(dirs)
+    q = tr["sample_point"] - mirror.sample_position
+    on_sample = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= sample_radius**2)
+    wo = tr["wo"]
+    sel = np.flatnonzero(on_sample)
+    idx = field_idx[sel]
+    # angular pitch: angle to the right-hand and lower neighbours among candidates
+    full = np.zeros((h * w, 3))
+    full[idx] = wo[sel]
+    has = np.zeros(h * w, dtype=bool)
+    has[idx] = True
+    full = full.reshape(h, w, 3)
+    has = has.reshape(h, w)
+    ang = 0.0
+    for a, b, ha, hb in (
+        (full[:, 1:], full[:, :-1], has[:, 1:], has[:, :-1]),
+        (full[1:], full[:-1], has[1:], has[:-1]),
+    ):
+        both = ha & hb
+        if both.any():
+            dots = np.clip(np.sum(a[both] * b[both], axis=-1), -1.0, 1.0)
+            ang = max(ang, float(np.arccos(dots).max()))
+    return Geometry(
+        height=h,
+        width=w,
+        field_idx=field_idx,
+        field_dirs=dirs,
+        idx=idx,
+        wx=np.ascontiguousarray(wo[sel, 0]),
+        wy=np.ascontiguousarray(wo[sel, 1]),
+        wz=np.ascontiguousarray(wo[sel, 2]),
+        qx=np.ascontiguousarray(q[sel, 0]),
+        qy=np.ascontiguousarray(q[sel, 1]),
+        isq=1.0 / np.sqrt(wo[sel, 2]),
+        q_max=float(np.sqrt((q[sel, 0] ** 2 + q[sel, 1] ** 2).max(initial=0.0))),
+        pixel_angle=ang,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+_GEOMETRY_CACHE: dict[tuple, Geometry] = {}
+
+
+# ---------------------------------------------------------------------------- helpers
+def _check_angle(value: Any, name: str, lo: float, hi: float, hi_open: bool) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number (radians), got {value!r}") from None
+    if not math.isfinite(v) or v < lo or (v >= hi if hi_open else v > hi):
+        br = ")" if hi_open else "]"
+        raise ValueError(f"{name} must be in [{lo:.6g}, {hi:.6g}{br} radians, got {value!r}")
+    return v
+
+
+def _check_positive(value: Any, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+    return v
+
+
+def _json_value(v: Any) -> Any:
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, int | float | str | bool) or v is None:
+        return v
+    if isinstance(v, list | tuple):
+        return [_json_value(x) for x in v]
+    if isinstance(v, dict):
+        return {str(k): _json_value(x) for k, x in v.items()}
+    return repr(v)
+
+
+def _resolve_sample(sample: Any) -> tuple[str, BRDF | None, str | None]:
+    """``(kind, model, material_name)`` with kind in {"brdf", "standard", "none"}."""
+    if sample is None:
+        return "none", None, None
+    if isinstance(sample, str):
+        if sample == STANDARD:
+            return "standard", None, None
+        from gonio import brdf, materials
+
+        if sample in materials.names():
+            return "brdf", materials.get(sample), sample
+        if sample in brdf.names():
+            return "brdf", brdf.create(sample), None
+        raise ValueError(
+            f"sample {sample!r} is neither a material preset ({', '.join(materials.names())}) "
+            f"nor a BRDF model ({', '.join(brdf.names())}); use 'standard' for the diffuse "
+            "standard or None for the background"
+        )
+    try:
+        return "brdf", as_brdf(sample), None
+    except ValueError:
+        raise ValueError(
+            f"sample must be a BRDF, a callable f(wi, wo), a preset or model name, "
+            f"'standard' or None; got {type(sample).__name__}"
+        ) from None
+
+
+def _rng_and_seed(rng: Any) -> tuple[np.random.Generator, int | None]:
+    if isinstance(rng, np.random.Generator):
+        return rng, None
+    if rng is None:
+        seed = int(np.random.SeedSequence().entropy)
+    elif isinstance(rng, int | np.integer) and int(rng) >= 0:
+        seed = int(rng)
+    else:
+        raise ValueError(f"rng must be a non-negative int, a numpy Generator or None, got {rng!r}")
+    return np.random.default_rng(seed), seed
+
+
+def _ward_kernel_params(model: BRDF) -> tuple[float, float, float, float, bool] | None:
+    """(kd, ks, 1/αx², 1/αy², approx) if the model has a specialised kernel, else None."""
+    from gonio.brdf.lambert import Lambert
+    from gonio.brdf.ward import Ward, WardApprox
+
+    t = type(model)
+    if t is Ward or t is WardApprox:
+        p = model.params
+        return (
+            p["rho_d"] / math.pi,
+            p["rho_s"] / (4.0 * math.pi * p["alpha_x"] * p["alpha_y"]),
+            1.0 / p["alpha_x"] ** 2,
+            1.0 / p["alpha_y"] ** 2,
+            t is WardApprox,
+        )
+    if t is Lambert:
+        return (model.params["rho"] / math.pi, 0.0, 1.0, 1.0, False)
+    return None
+
+
+def _lobe_width(model: BRDF) -> float | None:
+    """Smallest lobe width (radians) of models that declare one, else None."""
+    p = model.params
+    if "alpha_x" in p and "alpha_y" in p:
+        return float(min(p["alpha_x"], p["alpha_y"]))
+    if "alpha" in p and isinstance(p["alpha"], float):
+        return float(p["alpha"])
+    if model.name == "lambert":
+        return math.inf
+    return None
+
+
+# ---------------------------------------------------------------------------- the instrument
+class LBLInstrument:
+    """The simulated LBL imaging gonioreflectometer.
+
+    Parameters
+    ----------
+    mirror : {"ellipsoid", "hemisphere"} or Mirror
+        Dome shape (a :class:`~gonio.simulator.optics.Mirror` for full control).
+    radius, half_separation : float
+        Dome radius ``R`` (ellipsoid: semi-major axis) and ``D`` in metres.
+    lens : str or FisheyeLens
+        A lens model name (:data:`~gonio.simulator.lenses.LENS_MODELS`, built with
+        :func:`~gonio.simulator.lenses.make_lens` for ``width × height``) or a lens.
+    width, height : int
+        Sensor size in pixels (ignored when ``lens`` is a :class:`FisheyeLens`).
+    sensor, source, background : optional
+        :class:`Sensor`, :class:`Source`, :class:`Background` (defaults if omitted).
+    sample_radius : float
+        Radius of the (round) sample, metres; must be smaller than ``2D`` so the sample
+        does not overlap the lens.
+    rho_standard : float
+        Reflectance of the diffuse standard (Lambertian), in (0, 1].
+    mirror_reflectance, mirror_transmittance : float
+        Half-silvering (used when ``mirror`` is given by name).
+    """
+
+    def __init__(
+        self,
+        mirror: str | Mirror = "ellipsoid",
+        radius: float = 0.15,
+        half_separation: float = 0.01,
+        lens: str | FisheyeLens = "equidistant",
+        width: int = 640,
+        height: int = 480,
+        *,
+        sensor: Sensor | None = None,
+        source: Source | None = None,
+        background: Background | None = None,
+        sample_radius: float = 0.008,
+        rho_standard: float = 0.99,
+        mirror_reflectance: float = 0.5,
+        mirror_transmittance: float = 0.45,
+    ) -> None:
+        if isinstance(mirror, Mirror):
+            self.mirror = mirror
+        else:
+            if mirror not in MIRRORS:
+                raise ValueError(
+                    f"mirror {mirror!r} is unknown; expected one of {', '.join(MIRRORS)}"
+                )
+            self.mirror = Mirror(
+                mirror, radius, half_separation, mirror_reflectance, mirror_transmittance
+            )
+        if isinstance(lens, FisheyeLens):
+            self.lens = lens
+        elif isinstance(lens, str):
+            if lens not in LENS_MODELS:
+                raise ValueError(
+                    f"lens {lens!r} is unknown; expected one of {', '.join(LENS_MODELS)}"
+                )
+            self.lens = make_lens(lens, width, height)
+        else:
+            raise ValueError(f"lens must be a model name or a FisheyeLens, got {lens!r}")
+        self.sensor = sensor if sensor is not None else Sensor()
+        self.source = source if source is not None else Source()
+        self.background = background if background is not None else Background()
+        for name, obj, cls in (
+            ("sensor", self.sensor, Sensor),
+            ("source", self.source, Source),
+            ("background", self.background, Background),
+        ):
+            if not isinstance(obj, cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {type(obj).__name__}")
+        self.sample_radius = _check_positive(sample_radius, "sample_radius")
+        if self.sample_radius >= 2.0 * self.mirror.half_separation:
+            raise ValueError(
+                f"sample_radius = {sample_radius!r} must be smaller than 2D = "
+                f"{2.0 * self.mirror.half_separation!r} (the sample would overlap the lens)"
+            )
+        rs = _check_positive(rho_standard, "rho_standard")
+        if rs > 1.0:
+            raise ValueError(f"rho_standard must be in (0, 1], got {rho_standard!r}")
+        self.rho_standard = rs
+        self._bg_cache: dict[tuple, NDArray] = {}
+        self._resp: NDArray | None = None
+        self._resp_c: NDArray | None = None
+
+    # ------------------------------------------------------------------ description
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready instrument description (the instrument part of the metadata)."""
+        return {
+            "instrument": "lbl",
+            "mirror": self.mirror.to_dict(),
+            "lens": self.lens.to_dict(),
+            "sensor": self.sensor.to_dict(),
+            "source": self.source.to_dict(),
+            "background": self.background.to_dict(),
+            "sample_radius": self.sample_radius,
+            "rho_standard": self.rho_standard,
+        }
+
+    @classmethod
+    def from_metadata(cls, meta: dict[str, Any]) -> LBLInstrument:
+        """Rebuild the instrument a capture's metadata describes."""
+        try:
+            return cls(
+                Mirror.from_dict(meta["mirror"]),
+                lens=FisheyeLens.from_dict(
+                    meta["full_lens"] if "full_lens" in meta else meta["lens"]
+                ),
+                sensor=Sensor.from_dict(meta["sensor"]),
+                source=Source.from_dict(meta["source"]),
+                background=Background.from_dict(meta["background"]),
+                sample_radius=meta["sample_radius"],
+                rho_standard=meta["rho_standard"],
+            )
+        except KeyError as exc:
+            raise ValueError(f"metadata lacks {exc}; not an LBL capture") from None
+
+    def __repr__(self) -> str:
+        m = self.mirror
+        return (
+            f"LBLInstrument({m.kind}, R={m.radius:g}, D={m.half_separation:g}, "
+            f"lens={self.lens.model} {self.lens.width}x{self.lens.height})"
+        )
+
+    # ------------------------------------------------------------------ caches
+    @property
+    def geometry(self) -> Geometry:
+        """The traced per-pixel geometry (computed on first use, then cached)."""
+        key = (
+            tuple(sorted(self.mirror.to_dict().items())),
+            tuple(
+                (k, tuple(v) if isinstance(v, list) else v) for k, v in self.lens.to_dict().items()
+            ),
+            self.sample_radius,
+        )
+        g = _GEOMETRY_CACHE.get(key)
+        if g is None:
+            g = _trace_geometry(self.mirror, self.lens, self.sample_radius)
+            _GEOMETRY_CACHE[key] = g
+        return g
+
+    def _response(self) -> tuple[NDArray, NDArray]:
+        """Per-pixel electrons per (photon s⁻¹ m⁻² sr⁻¹ · s) at f/1: full image and candidates."""
+        if self._resp is None:
+            g = self.geometry
+            prnu, _ = self.sensor.maps(g.height, g.width)
+            k = self.sensor.qe * (math.pi / 4.0) * self.sensor.pixel_pitch**2
+            self._resp = (prnu * k).ravel()
+            self._resp_c = np.ascontiguousarray(self._resp[g.idx])
+        return self._resp, self._resp_c
+
+    def _background_photons(self, wi_dome: NDArray) -> NDArray:
+        """Background electrons per second at f/1, per pixel (cached per beam direction)."""
+        key = tuple(np.round(wi_dome, 12))
+        bg = self._bg_cache.get(key)
+        if bg is None:
+            g = self.geometry
+            resp, _ = self._response()
+            rad = np.zeros(g.n_pixels)
+            b = self.background
+            vals = np.full(len(g.field_idx), b.ambient * self.mirror.transmittance)
+            if b.stray > 0.0:
+                # where the beam (from the source towards S) crosses the dome, seen from C
+                cross = self._dome_crossing(wi_dome)
+                to = cross - self.mirror.camera_position
+                to /= np.linalg.norm(to)
+                cosang = np.clip(g.field_dirs @ to, -1.0, 1.0)
+                ang = np.arccos(cosang)
+                vals += b.stray * np.exp(-0.5 * (ang / b.stray_width) ** 2)
+            rad[g.field_idx] = vals
+            bg = rad * resp
+            if len(self._bg_cache) > 64:
+                self._bg_cache.clear()
+            self._bg_cache[key] = bg
+        return bg
+
+    def _dome_crossing(self, wi_dome: NDArray) -> NDArray:
+        """Point where the ray from the sample centre along ``wi_dome`` meets the dome."""
+        ax, ay, az = self.mirror.semi_axes
+        inv2 = np.array([1 / ax**2, 1 / ay**2, 1 / az**2])
+        s = self.mirror.sample_position
+        qa = float(np.dot(wi_dome * wi_dome, inv2))
+        qb = float(np.dot(wi_dome, s * inv2))
+        qc = float(np.dot(s * s, inv2) - 1.0)
+        t = (-qb + math.sqrt(qb * qb - qa * qc)) / qa
+        return s + t * wi_dome
+
+    # ------------------------------------------------------------------ rendering core
+    def _frames(self, theta_i: float, phi_i: float) -> tuple[NDArray, NDArray, float]:
+        """(wi_local, wi_dome, psi): psi = dome azimuth of the sample's x axis."""
+        psi = self.source.arm_azimuth - phi_i
+        st = math.sin(theta_i)
+        wi_local = np.array([st * math.cos(phi_i), st * math.sin(phi_i), math.cos(theta_i)])
+        a = self.source.arm_azimuth
+        wi_dome = np.array([st * math.cos(a), st * math.sin(a), math.cos(theta_i)])
+        return wi_local, wi_dome, psi
+
+    def _source_dirs(
+        self, model: BRDF, wi_local: NDArray, n: int | None
+    ) -> tuple[NDArray, NDArray]:
+        if n is None:
+            width = _lobe_width(model)
+            n = 1 if (width is None or width >= 5.0 * self.source.divergence) else 19
+        return cone_directions(wi_local, self.source.divergence, int(n))
+
+    def _signal_terms(
+        self,
+        model: BRDF,
+        theta_i: float,
+        phi_i: float,
+        k: float,
+        band: int | None,
+        source_samples: int | None,
+        kernel: bool,
+        visible_only: bool,
+    ) -> tuple[NDArray, NDArray, NDArray, float, float]:
+        """Per-candidate signal terms ``(lit, g, isq, kdc, ksc)``.
+
+        A candidate pixel j gains ``resp[j] · lit[j] · (kdc + ksc · g[j] · isq[j])``
+        electrons; ``k`` = E T R_m t / N². Ward/Lambert with one source direction use the
+        numba exponent kernel and numpy's exp (``g`` = the exponential, ``isq`` = 1/√cos θ_o);
+        everything else evaluates ``model.evaluate_unchecked`` on the lit pixels only
+        (``g`` = Σ w f_r cos θ_i, ``isq`` = 1).
+        """
+        g = self.geometry
+        wi_local, wi_dome, psi = self._frames(theta_i, phi_i)
+        c, s = math.cos(psi), math.sin(psi)
+        bx, by = float(wi_dome[0]), float(wi_dome[1])
+        r2 = self.source.spot_radius**2
+        wis, wsrc = self._source_dirs(model, wi_local, source_samples)
+        kp = _ward_kernel_params(model) if kernel else None
+        n = g.idx.size
+        foot = g.q_max**2 > r2
+        if kp is not None and visible_only:
+            from gonio.simulator import _kernels
+
+            kd, ks, iax2, iay2, approx = kp
+            lit = np.empty(n, dtype=np.uint8)
+            buf = np.empty(n)
+            if len(wis) == 1:
+                ix, iy, iz = (float(x) for x in wis[0])
+                if ks == 0.0:  # Lambertian: no exponent needed
+                    _kernels.ward_exponent(
+                        g.wx, g.wy, g.wz, g.qx, g.qy, foot, ix, iy, iz, c, s, bx, by, r2,
+                        0.0, 0.0, False, buf, lit,
+                    )  # fmt: skip
+                    return lit, buf, g.isq, k * kd * iz, 0.0
+                _kernels.ward_exponent(
+                    g.wx, g.wy, g.wz, g.qx, g.qy, foot, ix, iy, iz, c, s, bx, by, r2,
+                    iax2, iay2, approx, buf, lit,
+                )  # fmt: skip
+                np.exp(buf, out=buf)
+                return lit, buf, g.isq, k * kd * iz, k * ks * math.sqrt(iz)
+            _kernels.ward_cone(
+                g.wx, g.wy, g.wz, g.qx, g.qy, np.ascontiguousarray(wis), wsrc, c, s, bx, by,
+                r2, kd, ks, iax2, iay2, approx, buf, lit,
+            )  # fmt: skip
+            return lit, buf, self._ones(), 0.0, k
+        if visible_only:
+            wx, wy, wz, qx, qy = g.wx, g.wy, g.wz, g.qx, g.qy
+        else:
+            # the "no skip" reference of the benchmark: evaluate the BRDF on every pixel of
+            # the image circle, mask afterwards, then keep the candidates' values
+            wx, wy, wz, qx, qy, on, pos = self._all_field_arrays()
+        p = qx * bx + qy * by
+        litb = (qx * qx + qy * qy - p * p <= r2) & (wz > 0.0)
+        wo = np.stack([c * wx + s * wy, -s * wx + c * wy, wz], axis=-1)
+        if visible_only:
+            wo = wo[litb]
+        acc = np.zeros(wo.shape[0])
+        for wi_m, w_m in zip(wis, wsrc):
+            f = np.asarray(model.evaluate_unchecked(wi_m, wo), dtype=np.float64)
+            if f.ndim == 2:
+                f = f.mean(axis=-1) if band is None else f[:, band]
+            acc += w_m * f * max(float(wi_m[2]), 0.0)
+        if not np.isfinite(acc).all():
+            raise ValueError(f"BRDF {model!r} returned non-finite values")
+        if visible_only:
+            full = np.zeros(n)
+            full[litb] = acc
+            return litb.astype(np.uint8), full, self._ones(), 0.0, k
+        masked = np.where(litb & on, acc, 0.0)
+        return (litb & on)[pos].astype(np.uint8), masked[pos], self._ones(), 0.0, k
+
+    def _ones(self) -> NDArray:
+        if getattr(self, "_ones_c", None) is None or self._ones_c.size != self.geometry.idx.size:
+            self._ones_c = np.ones(self.geometry.idx.size)
+        return self._ones_c
+
+    def _all_field_arrays(self):
+        """Traced arrays for every in-field pixel (benchmark reference for the visible skip)."""
+        if getattr(self, "_field_arrays", None) is None:
+            g = self.geometry
+            tr = self.mirror.trace(g.field_dirs)
+            q = tr["sample_point"] - self.mirror.sample_position
+            on = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= self.sample_radius**2)
+            wo = tr["wo"]
+            pos = np.searchsorted(g.field_idx, g.idx)
+            self._field_arrays = (wo[:, 0], wo[:, 1], wo[:, 2], q[:, 0], q[:, 1], on, pos)
+        return self._field_arrays
+
+    def _add_delta(
+        self, out: NDArray, model: BRDF, wi_local: NDArray, wi_dome: NDArray, psi: float,
+        k: float, band: int | None, sub: int = 8,
+    ) -> None:  # fmt: skip
+        """Mirror component: radiance ρ_δ E/Ω_s over the image of the source cone."""
+        d_local, rho = model.delta(wi_local)
+        rho = np.asarray(rho, dtype=np.float64)
+        if rho.ndim == 1:
+            rho = rho.mean() if band is None else rho[band]
+        rho = float(rho)
+        if rho <= 0.0:
+            return
+        g = self.geometry
+        resp, _ = self._response()
+        c, s = math.cos(psi), math.sin(psi)
+        d = np.asarray(d_local, dtype=np.float64)
+        d_dome = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]])
+        gam = self.source.divergence
+        cosang = g.wx * d_dome[0] + g.wy * d_dome[1] + g.wz * d_dome[2]
+        near = np.flatnonzero(cosang >= math.cos(min(gam + 2.0 * g.pixel_angle, math.pi)))
+        if near.size == 0:
+            return
+        pix = g.idx[near]
+        rows, cols = np.divmod(pix, g.width)
+        off = (np.arange(sub) + 0.5) / sub - 0.5
+        ou, ov = np.meshgrid(off, off)
+        uv = np.stack(
+            [cols[:, None] + ou.ravel()[None, :], rows[:, None] + ov.ravel()[None, :]], axis=-1
+        )
+        dirs = self.lens.unproject(uv)
+        tr = self.mirror.trace(dirs)
+        q = tr["sample_point"] - self.mirror.sample_position
+        p = q[..., 0] * wi_dome[0] + q[..., 1] * wi_dome[1]
+        ok = (
+            tr["valid"]
+            & self.lens.in_field(uv)
+            & (q[..., 0] ** 2 + q[..., 1] ** 2 <= self.sample_radius**2)
+            & (q[..., 0] ** 2 + q[..., 1] ** 2 - p * p <= self.source.spot_radius**2)
+            & (tr["wo"] @ d_dome >= math.cos(gam))
+        )
+        cover = ok.mean(axis=-1)
+        radiance = rho / self.source.solid_angle  # per unit beam irradiance (k carries E)
+        out[pix] += k * resp[pix] * radiance * cover
+
+    def electrons(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        *,
+        exposure: float = 0.01,
+        f_number: float = 4.0,
+        band: int | None = None,
+        source_samples: int | None = None,
+        kernel: bool = True,
+        visible_only: bool = True,
+    ) -> NDArray[np.float64]:
+        """Noise-free expected electrons per pixel, ``(height, width)`` float64.
+
+        Same arguments as :meth:`capture`; ``kernel`` / ``visible_only`` switch off the
+        specialised kernel and the visible-pixel skip (for benchmarks and tests).
+        """
+        kind, model, _ = _resolve_sample(sample)
+        theta_i, phi_i, exposure, f_number = self._check_args(theta_i, phi_i, exposure, f_number)
+        return self._electrons(
+            kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+            kernel, visible_only,
+        ).reshape(self.lens.height, self.lens.width)  # fmt: skip
+
+    def _check_args(self, theta_i, phi_i, exposure, f_number):
+        theta_i = _check_angle(theta_i, "theta_i", 0.0, math.pi / 2, True)
+        try:
+            phi_i = float(phi_i)
+        except (TypeError, ValueError):
+            raise ValueError(f"phi_i must be a number (radians), got {phi_i!r}") from None
+        if not math.isfinite(phi_i):
+            raise ValueError(f"phi_i must be finite, got {phi_i!r}")
+        exposure = _check_positive(exposure, "exposure")
+        f_number = _check_positive(f_number, "f_number")
+        if f_number < 0.5:
+            raise ValueError(f"f_number must be >= 0.5, got {f_number!r}")
+        return theta_i, phi_i, exposure, f_number
+
+    def _render(
+        self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+        kernel=True, visible_only=True, digitise=False,
+    ) -> NDArray:  # fmt: skip
+        """Noise-free electrons (flat float64), or with ``digitise`` the uint16 image."""
+        g = self.geometry
+        _, wi_dome, psi = self._frames(theta_i, phi_i)
+        bg = self._background_photons(wi_dome)
+        dark = self._dark()
+        _, resp_c = self._response()
+        tk = exposure / f_number**2
+        if kind == "standard":
+            from gonio.brdf.lambert import Lambert
+
+            model = Lambert(rho=self.rho_standard)
+        if model is not None and model.n_bands and band is not None:
+            if not (0 <= band < model.n_bands):
+                raise ValueError(f"band must be in [0, {model.n_bands}), got {band!r}")
+        k = self.source.irradiance * self.mirror.transmittance * self.mirror.reflectance * tk
+        if model is None:
+            idx = g.idx[:0]
+            lit, gv, isq, kdc, ksc = idx.astype(np.uint8), resp_c[:0], resp_c[:0], 0.0, 0.0
+            rc = resp_c[:0]
+        else:
+            idx, rc = g.idx, resp_c
+            lit, gv, isq, kdc, ksc = self._signal_terms(
+                model, theta_i, phi_i, k, band, source_samples, kernel, visible_only
+            )
+        delta = model is not None and model.has_delta
+        sen = self.sensor
+        if kernel:
+            from gonio.simulator import _kernels
+
+            if digitise and not delta and sen.linear:
+                img = np.empty(g.n_pixels, dtype=np.uint16)
+                _kernels.compose_u16(
+                    bg, dark, tk, exposure, idx, rc, lit, gv, isq, kdc, ksc,
+                    sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
+                )  # fmt: skip
+                return img
+            out = np.empty(g.n_pixels)
+            _kernels.compose_float(bg, dark, tk, exposure, idx, rc, lit, gv, isq, kdc, ksc, out)
+        else:
+            out = bg * tk + dark * exposure
+            out[idx] += rc * lit * (kdc + ksc * gv * isq)
+        if delta:
+            wi_local, _, _ = self._frames(theta_i, phi_i)
+            self._add_delta(out, model, wi_local, wi_dome, psi, k, band)
+        if digitise:
+            return sen.digitise(out)
+        return out
+
+    def _electrons(
+        self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+        kernel=True, visible_only=True,
+    ) -> NDArray:  # fmt: skip
+        return self._render(
+            kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+            kernel, visible_only, False,
+        )  # fmt: skip
+
+    def _dark(self) -> NDArray:
+        """Dark-current map, electrons per second (flat, cached)."""
+        if getattr(self, "_dark_map", None) is None:
+            g = self.geometry
+            _, dsnu = self.sensor.maps(g.height, g.width)
+            self._dark_map = (dsnu * self.sensor.dark_current).ravel()
+        return self._dark_map
+
+    # ------------------------------------------------------------------ capture
+    def _finish(
+        self, e: NDArray, noise: bool, rng: np.random.Generator, binning, kernel: bool = True
+    ) -> tuple[NDArray[np.uint16], FisheyeLens]:
+        sen = self.sensor
+        if noise:
+            e = sen.add_noise(e, rng)
+        if binning is None:
+            if sen.linear and kernel:
+                from gonio.simulator import _kernels
+
+                img = np.empty(e.size, dtype=np.uint16)
+                _kernels.digitise_linear(
+                    e.ravel(), sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn),
+                    img,
+                )  # fmt: skip
+            else:
+                img = sen.digitise(e)
+            return img.reshape(self.lens.height, self.lens.width), self.lens
+        import cv2
+
+        bw, bh = binning
+        x = np.minimum(e, sen.full_well) * (1.0 / sen.gain)
+        if not sen.linear:
+            xm = sen._x_max
+            x = xm * (np.clip(x, 0.0, xm) / xm) ** sen.response_gamma
+        x = x.reshape(self.lens.height, self.lens.width) + sen.black_level
+        small = cv2.resize(x, (bw, bh), interpolation=cv2.INTER_AREA)
+        dn = np.clip(np.rint(small), 0, sen.max_dn).astype(np.uint16)
+        return dn, self.lens.resized(bw, bh)
+
+    def capture(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        *,
+        exposure: float = 0.01,
+        f_number: float = 4.0,
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+        binning: tuple[int, int] | bool | None = None,
+        band: int | None = None,
+        source_samples: int | None = None,
+    ) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+        """One raw image of ``sample`` lit from (θ_i, φ_i).
+
+        Parameters
+        ----------
+        sample : BRDF, callable, str or None
+            A model, a plain callable ``f(wi, wo)``, a material preset name
+            (:func:`gonio.materials.get`) or model name, ``"standard"`` (the diffuse
+            standard of reflectance ``rho_standard``), or ``None`` (no sample: background).
+        theta_i, phi_i : float
+            Incidence in the sample frame (radians), ``0 <= theta_i < pi/2``. θ_i is set by
+            the source arm, φ_i by rotating the sample holder to ``arm_azimuth - phi_i``.
+        exposure : float
+            Exposure time, seconds (> 0).
+        f_number : float
+            Lens f-number (image irradiance ∝ 1/N²).
+        rng : int, Generator or None
+            Noise seed. An int (or None, which draws a fresh seed) is recorded in the
+            metadata so the capture can be reproduced; a Generator is used as is.
+        noise : bool
+            False: no shot or read noise and no random draws (fixed patterns remain).
+        binning : (width, height), True or None
+            Reduce the image by area averaging before quantisation; ``True`` means Ward's
+            108 × 80.
+        band : int, optional
+            Band index of a spectral BRDF (default: the mean over bands, white light).
+        source_samples : int, optional
+            Directions averaged over the source cone; default 1 when the model's lobe is
+            at least 5× the beam divergence (or the model declares no lobe width), else 19.
+
+        Returns
+        -------
+        image : ndarray of uint16, shape (height, width)
+        metadata : dict
+            JSON-ready; see :meth:`metadata` (also written as the image side-car).
+        """
+        kind, model, material = _resolve_sample(sample)
+        theta_i, phi_i, exposure, f_number = self._check_args(theta_i, phi_i, exposure, f_number)
+        binning = self._check_binning(binning)
+        gen, seed = _rng_and_seed(rng) if noise else (None, None)
+        if noise or binning is not None:
+            e = self._render(kind, model, theta_i, phi_i, exposure, f_number, band, source_samples)
+            img, lens = self._finish(e, noise, gen, binning)
+        else:  # noise off: no random draws, and the ADC fused into the render pass
+            img = self._render(
+                kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+                digitise=True,
+            ).reshape(self.lens.height, self.lens.width)  # fmt: skip
+            lens = self.lens
+        meta = self.metadata(
+            kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
+            band, source_samples, lens, img,
+        )  # fmt: skip
+        return img, meta
+
+    @staticmethod
+    def _check_binning(binning):
+        if binning is None or binning is False:
+            return None
+        if binning is True:
+            return WARD_BINNING
+        try:
+            bw, bh = (int(x) for x in binning)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"binning must be (width, height), True or None, got {binning!r}"
+            ) from None
+        if bw < 1 or bh < 1:
+            raise ValueError(f"binning must be positive (width, height), got {binning!r}")
+        return (bw, bh)
+
+    def metadata(
+        self, kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
+        band, source_samples, lens, img,
+    ) -> dict[str, Any]:  # fmt: skip
+        """The metadata dict of a capture (everything needed to reproduce it)."""
+        meta = self.to_dict()
+        meta["full_lens"] = meta["lens"]
+        meta["lens"] = lens.to_dict()
+        brdf = None
+        if model is not None:
+            brdf = {"name": model.name, "params": _json_value(model.params)}
+            if material:
+                brdf["material"] = material
+        meta.update(
+            {
+                "exposure_s": exposure,
+                "f_number": f_number,
+                "theta_i": theta_i,
+                "phi_i": phi_i,
+                "sample_rotation": self.source.arm_azimuth - phi_i,
+                "sample": kind,
+                "brdf": brdf,
+                "seed": seed,
+                "noise": bool(noise),
+                "binning": list(binning) if binning else None,
+                "band": band,
+                "source_samples": source_samples,
+                "shape": list(img.shape),
+                "dtype": str(img.dtype),
+                "units": "DN",
+                "frame": "dome: origin sphere centre, z up, x right (phi 0); camera at (0,-D,0), "
+                "sample at (0,D,0); camera frame = dome frame, image u = +x, v = +y",
+            }
+        )
+        return meta
+
+    # ------------------------------------------------------------------ bands
+    def capture_bands(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        wavelengths_nm: Sequence[float] = (450.0, 550.0, 650.0),
+        *,
+        exposure: float = 0.01,
+        f_number: float = 4.0,
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+        evaluate_once: bool = True,
+    ) -> list[tuple[NDArray[np.uint16], dict[str, Any]]]:
+        """One capture per colour filter (flat source spectrum, equal filter efficiency).
+
+        A spectral BRDF is evaluated at the band nearest each filter (within 5 nm); a grey
+        BRDF is evaluated once and reused for every filter (``evaluate_once=False`` forces
+        one evaluation per filter, for the benchmark). Noise streams are spawned per filter
+        from ``rng``.
+        """
+        kind, model, material = _resolve_sample(sample)
+        theta_i, phi_i, exposure, f_number = self._check_args(theta_i, phi_i, exposure, f_number)
+        wl = [float(w) for w in wavelengths_nm]
+        if not wl:
+            raise ValueError("wavelengths_nm must name at least one filter")
+        bands: list[int | None] = [None] * len(wl)
+        if model is not None and model.n_bands:
+            mw = np.asarray(model.wavelengths_nm)
+            for i, w in enumerate(wl):
+                j = int(np.argmin(np.abs(mw - w)))
+                if abs(mw[j] - w) > 5.0:
+                    raise ValueError(
+                        f"filter {w} nm has no band of {model.name} within 5 nm "
+                        f"(bands {mw.min():g}-{mw.max():g} nm)"
+                    )
+                bands[i] = j
+        gen, seed = _rng_and_seed(rng) if noise else (None, None)
+        gens = gen.spawn(len(wl)) if noise else [None] * len(wl)
+        out = []
+        shared = None
+        for i, w in enumerate(wl):
+            grey = bands[i] is None
+            if grey and evaluate_once and shared is not None:
+                e = shared.copy()
+            else:
+                e = self._electrons(kind, model, theta_i, phi_i, exposure, f_number, bands[i], None)
+                if grey and evaluate_once:
+                    shared = e.copy()
+            img, lens = self._finish(e, noise, gens[i], None)
+            meta = self.metadata(
+                kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, None,
+                bands[i], None, lens, img,
+            )  # fmt: skip
+            meta["filter_nm"] = w
+            meta["filter_index"] = i
+            out.append((img, meta))
+        return out
+
+    # ------------------------------------------------------------------ bracketing
+    def plan_bracket(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        *,
+        exposure: float = 0.01,
+        f_stops: Sequence[float] = F_STOPS,
+        min_signal_dn: float = 16.0,
+        headroom: float = 0.9,
+    ) -> dict[str, Any]:
+        """Choose the f-stops that cover the dynamic range of a sample's image.
+
+        From the noise-free image: the first stop is the widest aperture at which the
+        brightest lit pixel stays below ``headroom × saturation``; each wider stop is kept
+        only if it brings at least one lit pixel into the usable range (unsaturated and at
+        least ``min_signal_dn`` above the background) that no kept stop covered. Stops
+        that add no such pixel are skipped.
+
+        Returns
+        -------
+        dict
+            ``f_numbers`` (kept, darkest first), ``skipped`` (tried and not kept),
+            ``covered_fraction`` of lit pixels, ``peak_saturated`` (even the darkest stop
+            saturates the peak), ``n_lit``.
+        """
+        kind, model, _ = _resolve_sample(sample)
+        theta_i, phi_i, exposure, _ = self._check_args(theta_i, phi_i, exposure, 1.0)
+        stops = sorted({_check_positive(f, "f_stops") for f in f_stops}, reverse=True)
+        if not stops:
+            raise ValueError("f_stops must not be empty")
+        sen = self.sensor
+        # electrons at f/1: sample + background, and background alone
+        e1 = self._electrons(kind, model, theta_i, phi_i, exposure, 1.0, None, None)
+        b1 = self._electrons("none", None, theta_i, phi_i, exposure, 1.0, None, None)
+        _, dsnu = self.sensor.maps(self.lens.height, self.lens.width)
+        dark = dsnu.ravel() * sen.dark_current * exposure
+        sig1 = e1 - b1  # signal at f/1 (dark is not scaled by N)
+        lit = sig1 > 0.0
+        n_lit = int(lit.sum())
+        sat_e = headroom * sen.full_well
+        kept: list[float] = []
+        skipped: list[float] = []
+        covered = np.zeros(lit.size, dtype=bool)
+        first = None
+        for i, n in enumerate(stops):
+            tot = (e1 - dark) / n**2 + dark
+            if tot[lit].max(initial=0.0) <= sat_e:
+                first = i
+            else:
+                break
+        peak_saturated = first is None
+        start = 0 if first is None else first
+        for n in stops[start:]:
+            tot = (e1 - dark) / n**2 + dark
+            useful = lit & (tot <= sat_e) & (sig1 / n**2 >= min_signal_dn * sen.gain)
+            new = useful & ~covered
+            if new.any() or not kept:
+                kept.append(n)
+                covered |= useful
+            else:
+                skipped.append(n)
+            if n_lit and covered[lit].all():
+                break
+        return {
+            "f_numbers": kept,
+            "skipped": skipped,
+            "covered_fraction": float(covered[lit].mean()) if n_lit else 1.0,
+            "peak_saturated": peak_saturated,
+            "n_lit": n_lit,
+            "exposure_s": exposure,
+        }
+
+    def bracket(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        *,
+        exposure: float = 0.01,
+        f_stops: Sequence[float] = F_STOPS,
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+        binning: tuple[int, int] | bool | None = None,
+        **plan_kw: Any,
+    ) -> list[tuple[NDArray[np.uint16], dict[str, Any]]]:
+        """Capture the f-stops :meth:`plan_bracket` chooses; each metadata has ``bracket``."""
+        plan = self.plan_bracket(
+            sample, theta_i, phi_i, exposure=exposure, f_stops=f_stops, **plan_kw
+        )
+        gen, seed = _rng_and_seed(rng) if noise else (None, None)
+        gens = gen.spawn(len(plan["f_numbers"])) if noise else [None] * len(plan["f_numbers"])
+        out = []
+        for i, n in enumerate(plan["f_numbers"]):
+            img, meta = self.capture(
+                sample, theta_i, phi_i, exposure=exposure, f_number=n, rng=gens[i],
+                noise=noise, binning=binning,
+            )  # fmt: skip
+            meta["seed"] = seed
+            meta["bracket"] = {"index": i, **plan}
+            out.append((img, meta))
+        return out
+
+    # ------------------------------------------------------------------ fake-device hook
+    def camera_render(
+        self,
+        sample: Any,
+        *,
+        source_axis: str = "source",
+        sample_axis: str = "sample",
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+    ) -> Callable[[dict[str, float], float, float], tuple[NDArray[np.uint16], dict[str, Any]]]:
+        """A ``camera_render(positions, exposure_s, f_number)`` callable for a simulated bench.
+
+        ``positions`` maps stage names to degrees: ``positions[source_axis]`` is θ_i (source
+        arm) and ``positions[sample_axis]`` the sample-holder rotation ψ, so that
+        ``φ_i = arm_azimuth - ψ``. Successive calls draw fresh noise from one generator.
+        """
+        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+
+        def render(positions: dict[str, float], exposure_s: float, f_number: float):
+            try:
+                th = math.radians(float(positions[source_axis]))
+                rot = math.radians(float(positions.get(sample_axis, 0.0)))
+            except KeyError:
+                raise ValueError(
+                    f"positions {positions!r} lack the source axis {source_axis!r}"
+                ) from None
+            phi = self.source.arm_azimuth - rot
+            phi = (phi + math.pi) % (2 * math.pi) - math.pi
+            return self.capture(
+                sample, th, phi, exposure=exposure_s, f_number=f_number, rng=gen, noise=noise
+            )
+
+        return render
+
+
+# ---------------------------------------------------------------------------- module level
+_DEFAULT: dict[str, LBLInstrument] = {}
+
+
+def default_instrument() -> LBLInstrument:
+    """The shared default instrument (ellipsoid, 640 × 480 equidistant fisheye)."""
+    if "lbl" not in _DEFAULT:
+        _DEFAULT["lbl"] = LBLInstrument()
+    return _DEFAULT["lbl"]
+
+
+def capture(
+    sample: Any,
+    theta_i: float,
+    phi_i: float = 0.0,
+    *,
+    instrument: LBLInstrument | None = None,
+    **kwargs: Any,
+) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+    """:meth:`LBLInstrument.capture` on ``instrument`` (default: :func:`default_instrument`)."""
+    inst = instrument if instrument is not None else default_instrument()
+    return inst.capture(sample, theta_i, phi_i, **kwargs)
+
+
+def reproduce(
+    meta: dict[str, Any], sample: Any = None
+) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+    """Capture again from a capture's metadata (the BRDF is rebuilt from ``meta["brdf"]``
+    unless ``sample`` is given; a plain callable cannot be rebuilt and must be passed)."""
+    inst = LBLInstrument.from_metadata(meta)
+    if sample is None:
+        if meta["sample"] == "standard":
+            sample = STANDARD
+        elif meta["sample"] == "brdf":
+            from gonio import brdf
+
+            b = meta["brdf"]
+            if b["name"] == "callable":
+                raise ValueError("the capture imaged a plain callable; pass it as sample")
+            sample = brdf.create(b["name"], **b["params"])
+    if meta.get("seed") is None and meta.get("noise"):
+        raise ValueError("the capture used a caller's Generator; its seed was not recorded")
+    return inst.capture(
+        sample,
+        meta["theta_i"],
+        meta["phi_i"],
+        exposure=meta["exposure_s"],
+        f_number=meta["f_number"],
+        rng=meta.get("seed"),
+        noise=meta["noise"],
+        binning=tuple(meta["binning"]) if meta.get("binning") else None,
+        band=meta.get("band"),
+        source_samples=meta.get("source_samples"),
+    )

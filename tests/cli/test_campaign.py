@@ -1,0 +1,74 @@
+"""The ``gonio campaign`` and ``gonio fit`` command lines."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gonio import brdf
+from gonio.cli import main
+from gonio.cli.campaign import parse_angles, parse_noise
+from gonio.samples import BRDFSamples
+
+
+def test_campaign_command_writes_summary_and_prints_table(tmp_path, capsys):
+    out = tmp_path / "run"
+    js = tmp_path / "s.json"
+    rc = main(["campaign", "--angles", "20,50", "--rotations", "0,90", "--no-plots",
+               "--out", str(out), "--json", str(js), "--seed", "3"])  # fmt: skip
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "rolled_brass fitted with ward" in text and "alpha_x" in text and "time (s)" in text
+    s = json.loads(js.read_text())
+    for key in ("material", "model", "truth", "fit", "stderr", "relative_error", "rms",
+                "n_samples", "converged", "timings_s", "seed"):  # fmt: skip
+        assert key in s
+    assert s["seed"] == 3 and s["plan"]["theta_i_deg"] == [20.0, 50.0]
+    assert json.loads((out / "summary.json").read_text())["fit"] == s["fit"]
+    # --resume reuses every capture and reproduces the fit
+    js2 = tmp_path / "s2.json"
+    rc = main(["campaign", "--angles", "20,50", "--rotations", "0,90", "--no-plots", "--quiet",
+               "--out", str(out), "--json", str(js2), "--seed", "3", "--resume"])  # fmt: skip
+    assert rc == 0 and capsys.readouterr().out == ""
+    s2 = json.loads(js2.read_text())
+    assert s2["n_captures"]["resumed_groups"] == 2 * 3
+    assert s2["fit"] == s["fit"]
+
+
+def test_campaign_command_bad_options(tmp_path, capsys):
+    assert main(["campaign", "--material", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown material" in capsys.readouterr().err
+    assert main(["campaign", "--noise", "loud", "--out", str(tmp_path)]) == 2
+    assert "--noise" in capsys.readouterr().err
+
+
+def test_parse_angles_and_noise():
+    assert parse_angles("0:80:21")[1] == pytest.approx(4.0)
+    assert len(parse_angles("0:80:21")) == 21
+    assert parse_angles("10, 20") == (10.0, 20.0)
+    with pytest.raises(ValueError, match="--angles"):
+        parse_angles("a:b")
+    assert parse_noise("off") == 0.0 and parse_noise("on") == 1.0 and parse_noise("2") == 2.0
+    with pytest.raises(ValueError):
+        parse_noise("-1")
+
+
+def test_fit_command(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    n = 600
+    ti, to = rng.uniform(0, 1.3, n), rng.uniform(0, 1.3, n)
+    pi, po = rng.uniform(0, 2 * np.pi, n), rng.uniform(0, 2 * np.pi, n)
+    s = BRDFSamples(ti, pi, to, po, np.zeros(n), np.full(n, np.nan))
+    s.value = brdf.create("ward", rho_d=0.2, rho_s=0.1, alpha_x=0.2, alpha_y=0.3)(s.wi, s.wo)
+    path = s.write(tmp_path / "s.csv")
+    js = tmp_path / "f.json"
+    assert main(["fit", str(path), "--model", "ward", "--json", str(js)]) == 0
+    d = json.loads(js.read_text())
+    assert d["model"] == "ward" and d["converged"]
+    assert d["params"]["alpha_y"] == pytest.approx(0.3, rel=1e-6)
+    assert "alpha_x" in capsys.readouterr().out
+    assert main(["fit", str(path), "--model", "ward", "--fixed", "rho_d=0.2"]) == 0
+    assert main(["fit", str(path), "--init", "rho_d"]) == 2
+    assert main(["fit", str(tmp_path / "missing.csv")]) == 2

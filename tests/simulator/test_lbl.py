@@ -1,0 +1,311 @@
+"""The simulated LBL imaging gonioreflectometer (003_0632ad07325ce89d.txt §3)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from gonio.simulator import (
+    STANDARD,
+    LBLInstrument,
+    Source,
+    capture,
+    eq3_reflection_angles,
+    reproduce,
+)
+from gonio.simulator.lbl import _GEOMETRY_CACHE
+
+from gonio import brdf, materials
+from gonio.brdf.base import BRDF
+
+TH = math.radians(30)
+
+
+@pytest.fixture(scope="module")
+def inst():
+    return LBLInstrument("ellipsoid", width=160, height=120)
+
+
+@pytest.fixture(scope="module")
+def hemi():
+    return LBLInstrument("hemisphere", 0.15, 0.02, width=160, height=120, sample_radius=0.012)
+
+
+def _lit(inst, th=TH, ph=0.0):
+    e_std = inst.electrons(STANDARD, th, ph)
+    e_bg = inst.electrons(None, th, ph)
+    return e_std > e_bg
+
+
+def test_capture_types_and_metadata(inst):
+    img, meta = inst.capture("rolled_brass", TH, 0.2, rng=5)
+    assert img.dtype == np.uint16 and img.shape == (120, 160)
+    json.dumps(meta, allow_nan=False)  # the side-car must be plain JSON
+    assert meta["brdf"] == {
+        "name": "ward",
+        "params": materials.get("rolled_brass").params,
+        "material": "rolled_brass",
+    }
+    for key in ("mirror", "lens", "sensor", "source", "background", "exposure_s", "f_number"):
+        assert key in meta
+    assert meta["theta_i"] == TH and meta["phi_i"] == 0.2 and meta["seed"] == 5
+    assert meta["sample"] == "brdf" and meta["shape"] == [120, 160]
+    assert int(img.max()) <= meta["sensor"]["max_dn"]
+
+
+def test_reproducible_with_seed_and_deterministic_without_noise(inst):
+    a, _ = inst.capture("rolled_brass", TH, rng=11)
+    b, meta = inst.capture("rolled_brass", TH, rng=11)
+    c, _ = inst.capture("rolled_brass", TH, rng=12)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    again, _ = reproduce(meta)
+    assert np.array_equal(again, a)
+    n1, m1 = inst.capture("rolled_brass", TH, noise=False)
+    n2, _ = inst.capture("rolled_brass", TH, noise=False)
+    assert np.array_equal(n1, n2) and m1["seed"] is None and not m1["noise"]
+    _, m_none = inst.capture("rolled_brass", TH, rng=None)
+    assert isinstance(m_none["seed"], int)  # a drawn seed is recorded
+
+
+def test_lambertian_equal_to_standard_gives_standard_image(inst):
+    lam = brdf.create("lambert", rho=inst.rho_standard)
+    a, _ = inst.capture(lam, TH, noise=False)
+    b, _ = inst.capture(STANDARD, TH, noise=False)
+    assert np.array_equal(a, b)
+    lit = _lit(inst).ravel()
+    # with noise: the difference of two independent captures is zero-mean noise
+    x, _ = inst.capture(lam, TH, rng=1)
+    y, _ = inst.capture(STANDARD, TH, rng=2)
+    d = x.astype(float).ravel()[lit] - y.astype(float).ravel()[lit]
+    assert abs(d.mean()) < 4.0 * d.std() / math.sqrt(d.size)
+    # and a Lambertian of half the reflectance gives half the signal
+    half = inst.electrons(brdf.create("lambert", rho=inst.rho_standard / 2), TH, 0.0)
+    bg = inst.electrons(None, TH, 0.0)
+    full = inst.electrons(STANDARD, TH, 0.0)
+    assert np.allclose((half - bg)[lit.reshape(bg.shape)], 0.5 * (full - bg)[lit.reshape(bg.shape)])
+
+
+def test_eq2_recovers_the_brdf_through_eq3(inst):
+    """(V - V_bg)/(V_std - V_bg) rho_std/pi = f_r at the angles eq. 3 assigns (ellipsoid)."""
+    model = materials.get("rolled_brass")
+    ph = math.radians(25)
+    kw = dict(f_number=22.0)
+    v = inst.electrons(model, TH, ph, **kw)
+    vs = inst.electrons(STANDARD, TH, ph, **kw)
+    vb = inst.electrons(None, TH, ph, **kw)
+    lit = vs > vb
+    rho = (v - vb)[lit] / (vs - vb)[lit] * inst.rho_standard / math.pi
+    d = inst.lens.unproject(inst.lens.pixel_grid()[lit])
+    tc = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
+    pc = np.arctan2(d[:, 1], d[:, 0])
+    R, D = inst.mirror.radius, inst.mirror.half_separation
+    tr, pr = eq3_reflection_angles(tc, pc, R, D, mirror="ellipsoid")
+    pl = pr - (inst.source.arm_azimuth - ph)  # dome azimuth -> sample frame
+    wo = np.stack([np.sin(tr) * np.cos(pl), np.sin(tr) * np.sin(pl), np.cos(tr)], -1)
+    wi = np.array([math.sin(TH) * math.cos(ph), math.sin(TH) * math.sin(ph), math.cos(TH)])
+    assert np.allclose(rho, model(wi, wo), rtol=1e-10)
+    assert lit.sum() > 0.7 * math.pi / 4 * 120**2 * 0.98**2
+
+
+def test_linear_in_exposure(inst):
+    sen = inst.sensor
+    a, _ = inst.capture("rolled_aluminum", TH, exposure=0.002, f_number=8, noise=False)
+    b, _ = inst.capture("rolled_aluminum", TH, exposure=0.004, f_number=8, noise=False)
+    c, _ = inst.capture(
+        "rolled_aluminum", TH, exposure=0.004, f_number=8 / math.sqrt(2), noise=False
+    )
+    a = a.astype(float) - sen.black_level
+    b = b.astype(float) - sen.black_level
+    c = c.astype(float) - sen.black_level
+    ok = b < 0.9 * (sen.saturation_dn - sen.black_level)
+    assert ok.sum() > 1000 and (a > 100).sum() > 100
+    assert np.abs(b - 2 * a)[ok].max() <= 1.0  # rounding of a, doubled, plus rounding of b
+    # one stop wider aperture = doubled exposure (dark current is not scaled by aperture)
+    ec = inst.electrons("rolled_aluminum", TH, exposure=0.004, f_number=8 / math.sqrt(2))
+    eb = inst.electrons("rolled_aluminum", TH, exposure=0.004, f_number=8)
+    eb2 = inst.electrons("rolled_aluminum", TH, exposure=0.008, f_number=8)
+    assert np.all(ec <= eb2 + 1e-6) and np.all(ec >= eb - 1e-9)
+    assert np.abs(c - b).max() > 10
+
+
+def test_saturation(inst):
+    img, meta = inst.capture("rolled_brass", TH, exposure=1.0, f_number=2, noise=False)
+    assert img.max() == int(meta["sensor"]["saturation_dn"])
+
+
+class _Mirror(BRDF):
+    """A perfect mirror: nothing but a delta component of reflectance 0.8."""
+
+    name = "test_mirror"
+
+    def _eval(self, wi, wo):
+        return np.zeros(np.broadcast_shapes(wi.shape, wo.shape)[:-1])
+
+    def delta(self, wi):
+        wi = np.asarray(wi, dtype=float)
+        return wi * np.array([-1.0, -1.0, 1.0]), np.full(wi.shape[:-1], 0.8)
+
+
+def test_specular_sample_lights_exactly_the_mirror_pixels():
+    gam = math.radians(3.0)
+    inst = LBLInstrument("ellipsoid", width=160, height=120, source=Source(divergence=gam))
+    ph = math.radians(40)
+    m = _Mirror()
+    assert m.has_delta
+    sig = inst.electrons(m, TH, ph) - inst.electrons(None, TH, ph)
+    lit = np.flatnonzero(sig.ravel() > 1e-9)
+    g = inst.geometry
+    wi_dome = np.array([math.sin(TH), 0.0, math.cos(TH)])  # arm azimuth 0
+    mirror_dir = wi_dome * [-1, -1, 1]
+    wo = np.stack([g.wx, g.wy, g.wz], -1)
+    ang = np.arccos(np.clip(wo @ mirror_dir, -1, 1))
+    pos = {p: a for p, a in zip(g.idx, ang)}
+    assert lit.size > 10
+    # every lit pixel's footprint reaches into the cone, every pixel well inside is lit
+    assert max(pos[p] for p in lit) <= gam + g.pixel_angle
+    inside = {p for p, a in pos.items() if a < gam - g.pixel_angle}
+    assert inside and inside <= set(lit.tolist())
+    # fully covered pixels carry the mirror's radiance rho E T / Omega_s
+    k = inst.source.irradiance * inst.mirror.transmittance * inst.mirror.reflectance * 0.01 / 16
+    resp, _ = inst._response()
+    expect = k * resp * 0.8 / inst.source.solid_angle
+    p = next(iter(inside))
+    assert sig.ravel()[p] == pytest.approx(expect[p], rel=1e-12)
+    # the same image through capture()
+    img, _ = inst.capture(m, TH, ph, noise=False)
+    bg, _ = inst.capture(None, TH, ph, noise=False)
+    assert set(np.flatnonzero(img.ravel() > bg.ravel() + 1).tolist()) <= set(lit.tolist())
+
+
+def test_unlit_pixels_read_background(hemi):
+    """Pixels whose ray misses the sample or the beam footprint read only the background."""
+    small = LBLInstrument(
+        "hemisphere", 0.15, 0.02, width=160, height=120, sample_radius=0.012,
+        source=Source(spot_radius=0.0005),
+    )  # fmt: skip
+    e = small.electrons("rolled_brass", TH)
+    bg = small.electrons(None, TH)
+    lit = e > bg
+    g = small.geometry
+    assert 0 < lit.sum() < g.idx.size  # the spot is smaller than what the camera sees
+    assert np.array_equal(e[~lit], bg[~lit])
+    q2 = g.qx**2 + g.qy**2
+    assert lit.ravel()[g.idx[q2 < 1e-8]].all()
+    # background is present with and without a sample, and brighter near the beam crossing
+    assert bg.min() >= 0 and bg.max() > 2 * np.median(bg[bg > 0])
+
+
+def test_kernel_and_generic_paths_agree(inst, hemi):
+    for ins in (inst, hemi):
+        for name in ("rolled_brass", "ward_approx", "lambert"):
+            a = ins.electrons(name, TH, 0.4)
+            b = ins.electrons(name, TH, 0.4, kernel=False)
+            c = ins.electrons(name, TH, 0.4, kernel=False, visible_only=False)
+            assert np.allclose(a, b, rtol=1e-12, atol=0)
+            assert np.array_equal(b, c)
+
+
+def test_any_brdf_can_be_imaged(inst):
+    ward = materials.get("rolled_brass")
+    via_callable = inst.electrons(lambda wi, wo: ward(wi, wo), TH, 0.3)
+    via_model = inst.electrons(ward, TH, 0.3)
+    assert np.allclose(via_callable, via_model, rtol=1e-12)
+    for s in ("oren_nayar", brdf.create("lafortune")):
+        img, meta = inst.capture(s, TH, noise=False)
+        assert meta["brdf"]["name"] in brdf.names()
+        assert img.max() > inst.capture(None, TH, noise=False)[0].max()
+
+
+def test_binning_to_ward_resolution(inst):
+    img, meta = inst.capture("rolled_brass", TH, binning=True, noise=False)
+    assert img.shape == (80, 108) and meta["lens"]["width"] == 108
+    full, _ = inst.capture("rolled_brass", TH, noise=False)
+    assert abs(img.astype(float).mean() - full.astype(float).mean()) < 1.0
+    again, _ = reproduce(meta)
+    assert np.array_equal(again, img)
+
+
+def test_bracketing():
+    inst = LBLInstrument("ellipsoid", width=160, height=120)
+    # a two-level BRDF: a bright cap and a dim floor 2000x lower with no values in between,
+    # so the stops between the two ranges add no pixel and are skipped
+
+    def two_level(wi, wo):
+        h = wi + wo
+        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        return np.where(h[..., 2] > math.cos(0.1), 20.0, 0.01)
+
+    plan = inst.plan_bracket(two_level, TH, f_stops=(32, 22, 16, 11, 8, 5.6, 4, 2.8, 2, 1.4))
+    assert len(plan["f_numbers"]) >= 2 and plan["skipped"]
+    assert plan["covered_fraction"] == 1.0 and not plan["peak_saturated"]
+    shots = inst.bracket(two_level, TH, noise=False)
+    first = shots[0][0]
+    assert first.max() < inst.sensor.saturation_dn  # the peak is not saturated
+    assert [m["f_number"] for _, m in shots] == plan["f_numbers"]
+    assert inst.plan_bracket("lambert", TH)["f_numbers"] == [2.0]
+
+
+def test_grey_bands_evaluated_once(inst):
+    once = inst.capture_bands("rolled_brass", TH, noise=False)
+    each = inst.capture_bands("rolled_brass", TH, noise=False, evaluate_once=False)
+    assert len(once) == 3
+    for (a, _), (b, _) in zip(once, each):
+        assert np.array_equal(a, b)
+    assert [m["filter_nm"] for _, m in once] == [450.0, 550.0, 650.0]
+
+
+def test_camera_render_hook(inst):
+    render = inst.camera_render("rolled_brass", noise=False)
+    img, meta = render({"source": 30.0, "sample": -40.0}, 0.01, 4.0)
+    assert meta["phi_i"] == pytest.approx(math.radians(40))
+    ref, _ = inst.capture("rolled_brass", TH, math.radians(40), noise=False)
+    assert np.array_equal(img, ref)
+
+
+def test_geometry_is_cached():
+    a = LBLInstrument("hemisphere", 0.1, 0.01, width=64, height=48, sample_radius=0.005)
+    b = LBLInstrument("hemisphere", 0.1, 0.01, width=64, height=48, sample_radius=0.005)
+    assert a.geometry is b.geometry
+    assert any(v is a.geometry for v in _GEOMETRY_CACHE.values())
+
+
+def test_module_level_capture():
+    img, meta = capture(STANDARD, TH, noise=False)
+    assert img.shape == (480, 640) and meta["sample"] == "standard"
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"theta_i": math.pi / 2}, "theta_i must be in"),
+        ({"theta_i": 2.0}, "theta_i must be in"),
+        ({"theta_i": -0.1}, "theta_i must be in"),
+        ({"exposure": -0.01}, "exposure must be a finite positive"),
+        ({"exposure": 0.0}, "exposure"),
+        ({"f_number": 0.0}, "f_number"),
+        ({"rng": -3}, "rng must be"),
+        ({"sample": "unobtainium"}, "neither a material preset"),
+        ({"sample": 42}, "sample must be"),
+        ({"binning": (0, 3)}, "binning"),
+    ],
+)
+def test_bad_capture_input(inst, kwargs, match):
+    args = {"sample": "rolled_brass", "theta_i": TH}
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        inst.capture(args.pop("sample"), args.pop("theta_i"), **args)
+
+
+def test_bad_instrument_input():
+    with pytest.raises(ValueError, match="half_separation D"):
+        LBLInstrument("hemisphere", 0.1, 0.1)
+    with pytest.raises(ValueError, match="lens 'pinhole' is unknown"):
+        LBLInstrument(lens="pinhole")
+    with pytest.raises(ValueError, match="mirror 'flat' is unknown"):
+        LBLInstrument("flat")
+    with pytest.raises(ValueError, match="sample_radius"):
+        LBLInstrument(half_separation=0.01, sample_radius=0.03)
+    with pytest.raises(ValueError, match="rho_standard"):
+        LBLInstrument(rho_standard=1.2)
