@@ -23,13 +23,10 @@ import time
 from gonio import campaign, materials
 
 
-def ward_table_materials() -> list[str]:
-    """Every preset of Ward's §6 tables (main table and the latex tables)."""
-    return [
-        n
-        for n in materials.names("ward")
-        if materials.info(n).get("table") in ("ward", "ward_latex")
-    ]
+def ward_table_materials(latex: bool = False) -> list[str]:
+    """The presets of Ward's §6 table of fits (with ``latex``: also the latex paint tables)."""
+    tables = ("ward", "ward_latex") if latex else ("ward",)
+    return [n for n in materials.names("ward") if materials.info(n).get("table") in tables]
 
 
 def run_one(material: str, model: str | None, noise: float, compare=(), plots=False) -> dict:
@@ -57,6 +54,7 @@ def run_one(material: str, model: str | None, noise: float, compare=(), plots=Fa
         "n_samples": s["n_samples"],
         "compare": {k: v.get("rms") for k, v in s["compare"].items()},
         "time_s": s["timings_s"]["total"],
+        "timings_s": s["timings_s"],
     }
 
 
@@ -68,7 +66,10 @@ def _print(r: dict) -> None:
         f"{r['material']:34s} {r['model']:12s} noise {r['noise']:g} "
         f"{'ok ' if r['converged'] else 'NOT'} | {rel} | pulls {pul} | rms {r['rms']:.4g}"
         + (f" | {comp}" if comp else "")
-        + f" | n {r['n_samples']} | {r['time_s']:.1f} s",
+        + f" | n {r['n_samples']} | {r['time_s']:.1f} s"
+        + " ("
+        + ", ".join(f"{k} {v:.1f}" for k, v in r["timings_s"].items() if v >= 0.5)
+        + ")",
         flush=True,
     )
 
@@ -77,6 +78,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ward-table", action="store_true")
     ap.add_argument("--others", action="store_true")
+    ap.add_argument("--latex", action="store_true", help="with --ward-table: latex tables too")
     ap.add_argument("--materials", default=None, help="comma-separated subset")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--json", default=None)
@@ -94,7 +96,7 @@ def main(argv=None) -> int:
         out["default_wall_s"] = times
         out["default_timings_s"] = res.summary["timings_s"]
     if args.ward_table:
-        names = args.materials.split(",") if args.materials else ward_table_materials()
+        names = args.materials.split(",") if args.materials else ward_table_materials(args.latex)
         rows = []
         for n in names:
             for noise in (0.0, 1.0):
@@ -111,8 +113,8 @@ def main(argv=None) -> int:
         print(f"default noise: {n3}/{len(on)} materials with every parameter within 3 sigma")
     if args.others:
         rows = []
-        for material, model in _others():
-            r = run_one(material, model, 1.0)
+        for material, model, comp in _others():
+            r = run_one(material, model, 1.0, comp)
             _print(r)
             rows.append(r)
         out["others"] = rows
@@ -127,16 +129,18 @@ def main(argv=None) -> int:
     return 0
 
 
-def _others() -> list[tuple[str, str]]:
-    pairs = []
+def _others() -> list[tuple[str, str, tuple[str, ...]]]:
+    """(material, model, compared models): Lafortune presets with lafortune, Oren-Nayar's
+    plaster with oren_nayar (and lambert), Li-Torrance presets with li_torrance and ward."""
+    out = []
     for n in materials.names("lafortune"):
-        pairs.append((n, "lafortune"))
-    for n in materials.names("oren_nayar"):
-        pairs.append((n, "oren_nayar"))
-    lt = materials.names("li_torrance")
-    for n in lt[:2] + [x for x in lt if x.startswith("garnet")][:1]:
-        pairs += [(n, "li_torrance"), (n, "ward")]
-    return pairs
+        out.append((n, "lafortune", ("ward",)))
+    if "wall_plaster" in materials.names("oren_nayar"):
+        out.append(("wall_plaster", "oren_nayar", ("lambert",)))
+    for n in ("garnet_red_paint", "aluminized_ground_glass"):
+        if n in materials.names("li_torrance"):
+            out.append((n, "li_torrance", ("ward",)))
+    return out
 
 
 if __name__ == "__main__":

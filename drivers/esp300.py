@@ -119,9 +119,19 @@ class ESP300:
         self._dirty = False
 
     @classmethod
-    def open(cls, port: str, **kwargs: Any) -> ESP300:
-        """Open a serial port (path or pyserial URL) and return the driver."""
-        return cls(SerialTransport(port), **kwargs)
+    def open(
+        cls, port: str, *, baudrate: int = 19200, rtscts: bool = True, **kwargs: Any
+    ) -> ESP300:
+        """Open a serial port (path or pyserial URL) and return the driver.
+
+        The ESP300's RS-232 settings: 19200 baud, 8 data bits, no parity, 1 stop bit,
+        RTS/CTS hardware handshake (ignored by pseudo-terminals and TCP URLs).
+        """
+        try:
+            transport = SerialTransport(port, baudrate=baudrate, rtscts=rtscts)
+        except TransportDisconnected as exc:
+            raise DeviceDisconnected(DEVICE, "open", None, str(exc)) from exc
+        return cls(transport, **kwargs)
 
     # -- low level ------------------------------------------------------------------------
     def _write(self, command: str) -> None:

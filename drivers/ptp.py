@@ -436,7 +436,7 @@ class PTPCamera:
                     f"(ObjectAdded {'seen' if handle else 'not seen'})",
                 )
             try:
-                code, etid, params = self.wait_event(left)
+                code, etid, params = self.wait_event(min(left, 1.0))  # poll in slices
             except TransportTimeout:
                 continue
             except TransportDisconnected:

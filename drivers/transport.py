@@ -24,6 +24,14 @@ __all__ = [
 ]
 
 
+try:  # a vanished pty makes pyserial's tcdrain raise termios.error (not an OSError)
+    import termios
+
+    _TERMIOS_ERRORS: tuple[type[BaseException], ...] = (termios.error,)
+except ImportError:  # pragma: no cover - not POSIX
+    _TERMIOS_ERRORS = ()
+
+
 class TransportTimeout(TimeoutError):
     """Nothing (or not enough) arrived in time."""
 
@@ -101,7 +109,7 @@ class SerialTransport:
         try:
             self._port.write(data)
             self._port.flush()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:
             raise TransportDisconnected(f"write to {self.url} failed: {exc}") from exc
 
     def read_line(self, timeout: float) -> bytes:
@@ -126,7 +134,7 @@ class SerialTransport:
                     return bytes(buf)
         except TransportTimeout:
             raise
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:
             raise TransportDisconnected(f"read from {self.url} failed: {exc}") from exc
 
     def flush_input(self) -> None:

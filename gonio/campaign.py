@@ -490,16 +490,22 @@ def run(
 
     # ------------------------------------------------------------------ fit
     t = time.perf_counter()
+    bar = Progress(1 + len(plan.compare), f"fit {plan.model}", quiet=quiet, stream=stream,
+                   min_time=0.0)  # fmt: skip
+    bar.update(0)
     template, fit_kw = _fit_setup(plan.model, truth_model)
     result = _fit.fit(samples, template, residual=plan.residual, **fit_kw)
     timings["fit"] = time.perf_counter() - t
     t = time.perf_counter()
     compare = {}
     for name in plan.compare:
+        bar.update(label=f"fit {name}")
         try:
             compare[name] = _fit.fit(samples, name, residual=plan.residual)
         except ValueError as exc:  # report, do not abort the campaign
             compare[name] = exc
+    bar.update()
+    bar.close()
     timings["compare"] = time.perf_counter() - t
     t = time.perf_counter()
     if csv_job is not None:

@@ -14,7 +14,9 @@ Lookup (``BRDFRead.cpp``), on the Rusinkiewicz half/difference angles of
 * θd index ``floor(90 θd / (π/2))``;
 * φd folded to [0, π) by reciprocity, index ``floor(180 φd / π)``. ``BRDFRead.cpp`` adds π to
   negative φd and clamps φd = π to the last cell; here φd = π wraps to cell 0 (the same cell
-  by the fold), so that in-plane directions, where φd is exactly 0 or ±π, stay reciprocal.
+  by the fold). θd and φd are computed in a form that is exactly symmetric under swapping
+  ``wi`` and ``wo`` (see :func:`merl_angles`), so the lookup is reciprocal bit for bit, also
+  for pairs on a cell boundary (in-plane directions have φd = 0 or π).
 
 All indices are clamped to the grid. Arrays in this module use the file's layout:
 ``(3, 90, 90, 180)`` for colour data, ``(90, 90, 180)`` for a grey table; values in sr⁻¹
@@ -38,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gonio.geometry import difference_half_angles, from_difference_half_angles
+from gonio.geometry import from_difference_half_angles
 from gonio.samples import atomic_write_bytes
 
 __all__ = [
@@ -49,6 +51,7 @@ __all__ = [
     "SHAPE",
     "WAVELENGTHS_NM",
     "cell_centres",
+    "merl_angles",
     "merl_index",
     "read_merl",
     "tabulate",
@@ -160,24 +163,63 @@ def write_merl(path: str | os.PathLike, array: ArrayLike, raw: bool = False) -> 
     return atomic_write_bytes(path, header + body)
 
 
+def merl_angles(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.float64], ...]:
+    """``(theta_h, theta_d, phi_d)`` with φd folded to [0, π), exactly symmetric in wi, wo.
+
+    The same angles as :func:`gonio.geometry.difference_half_angles` (MERL's convention: the
+    difference vector is wi rotated by −φh about z, then by −θh about y), computed without
+    building rotated vectors: ``θh`` from the half vector, ``θd = atan2(|wi − wo|, |wi + wo|)``
+    and ``φd`` the azimuth of ``wi − wo`` in the half-vector frame (that difference is twice
+    the tangential part of the difference vector). The sign of ``wi − wo`` is canonicalised
+    before ``atan2``, so the swapped pair — whose difference is the exact negative — gives
+    bit-identical angles, also on a cell boundary. ``wi = −wo`` takes the normal as half
+    vector (as :func:`~gonio.geometry.half_vector` does).
+    """
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    hx = wi[..., 0] + wo[..., 0]
+    hy = wi[..., 1] + wo[..., 1]
+    hz = wi[..., 2] + wo[..., 2]
+    ux = wi[..., 0] - wo[..., 0]
+    uy = wi[..., 1] - wo[..., 1]
+    uz = wi[..., 2] - wo[..., 2]
+    rxy = np.sqrt(hx * hx + hy * hy)
+    hn = np.sqrt(rxy * rxy + hz * hz)
+    zero = hn == 0.0
+    th = np.where(zero, 0.0, np.arctan2(rxy, hz))
+    td = np.arctan2(np.sqrt(ux * ux + uy * uy + uz * uz), hn)
+    flat = rxy == 0.0
+    r_safe = np.where(flat, 1.0, rxy)
+    c_p = np.where(flat, 1.0, hx / r_safe)  # cos φh (φh = 0 on the pole)
+    s_p = np.where(flat, 0.0, hy / r_safe)
+    h_safe = np.where(zero, 1.0, hn)
+    c_t = np.where(zero, 1.0, hz / h_safe)
+    s_t = np.where(zero, 0.0, rxy / h_safe)
+    x1 = c_p * ux + s_p * uy  # rotate by -φh about z
+    y1 = c_p * uy - s_p * ux
+    x2 = c_t * x1 - s_t * uz  # rotate by -θh about y
+    flip = (y1 < 0.0) | ((y1 == 0.0) & (x2 < 0.0))
+    pd = np.arctan2(np.where(flip, -y1, y1), np.where(flip, -x2, x2))
+    pd = np.where(pd >= np.pi, 0.0, np.maximum(pd, 0.0))
+    return th, td, pd
+
+
 def merl_index(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.bool_], NDArray[np.intp]]:
     """MERL cell of each direction pair: ``(valid, flat_index)``.
 
     ``flat_index`` indexes a ``(90*90*180,)`` table (C order over θh, θd, φd); ``valid`` is
-    false where ``wi`` or ``wo`` is at or below the horizon (their index is 0).
+    false where ``wi`` or ``wo`` is at or below the horizon (their index is 0). Angles from
+    :func:`merl_angles`.
     """
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
-    th, _, td, pd = difference_half_angles(wi, wo)
+    th, td, pd = merl_angles(wi, wo)
     valid = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     valid = np.broadcast_to(valid, th.shape)
-    i_h = np.floor(np.sqrt(np.maximum(th, 0.0) / (0.5 * np.pi)) * N_THETA_H)
-    i_h = np.clip(i_h, 0, N_THETA_H - 1).astype(np.intp)
-    i_d = np.clip(np.floor(td / (0.5 * np.pi) * N_THETA_D), 0, N_THETA_D - 1).astype(np.intp)
-    pd = np.where(pd < 0.0, pd + np.pi, pd)
-    i_p = np.floor(pd / np.pi * N_PHI_D).astype(np.intp)
-    i_p = np.where(i_p >= N_PHI_D, i_p - N_PHI_D, i_p)
-    i_p = np.clip(i_p, 0, N_PHI_D - 1)
+    i_h = np.sqrt(th * (1.0 / (0.5 * np.pi))) * N_THETA_H
+    i_h = np.minimum(i_h, N_THETA_H - 1).astype(np.intp)
+    i_d = np.minimum(td * (N_THETA_D / (0.5 * np.pi)), N_THETA_D - 1).astype(np.intp)
+    i_p = np.minimum(pd * (N_PHI_D / np.pi), N_PHI_D - 1).astype(np.intp)
     flat = (i_h * N_THETA_D + i_d) * N_PHI_D + i_p
     return valid, np.where(valid, flat, 0)
 

@@ -72,8 +72,8 @@ __all__ = [
     "KNOWN_KEYWORDS",
     "MODEL_EXTRAS",
     "RECIPROCITY_RTOL",
-    "STAGES",
     "SIZES",
+    "STAGES",
     "StageResult",
     "StressConfig",
     "adversarial_pairs",
@@ -94,7 +94,7 @@ KNOWN_KEYWORDS: dict[str, tuple[str, ...]] = {
 }
 RECIPROCITY_RTOL = 1e-9
 ENERGY_TOL = 1e-3
-ENERGY_THETA_DEG = (0.0, 45.0, 75.0, 85.0, 89.0)
+ENERGY_THETA_DEG = (0.0, 45.0, 75.0, 85.0, 89.0, 89.9, 89.99, 89.999, 89.99999)
 _WEIGHT_PREFIXES = ("rho", "k_", "a_d", "a_s", "c_n", "r_m")
 
 #: extra values tried for a parameter of this name (clipped to the model's bounds)
@@ -116,6 +116,7 @@ class StressConfig:
     n_random_sets: int = 4  # random parameter combinations per model
     energy: bool = True
     energy_nodes: tuple[int, int] = (24, 48)  # coarse (n_s, n_phi); fine is twice that
+    analytic_albedo: bool = True  # use a model's own analytic albedo (else quadrature only)
     max_sets: int = 80  # cap on parameter sets per model
     model_seconds: float = 3.0  # evaluation budget per model (random pairs are trimmed)
     models: tuple[str, ...] | None = None
@@ -123,11 +124,16 @@ class StressConfig:
 
 
 SIZES: dict[str, StressConfig] = {
-    "small": StressConfig("small", n_random=20, n_random_sets=1, max_sets=25, model_seconds=0.4),
-    "default": StressConfig("default"),
-    "full": StressConfig(
-        "full", n_random=40000, n_random_sets=12, max_sets=200, model_seconds=120.0
+    "small": StressConfig(
+        "small",
+        n_random=20,
+        n_random_sets=1,
+        max_sets=25,
+        model_seconds=0.3,
+        analytic_albedo=False,
     ),
+    "default": StressConfig("default", model_seconds=2.0),
+    "full": StressConfig("full", n_random=3000, n_random_sets=12, max_sets=60, model_seconds=60.0),
 }
 
 
@@ -290,6 +296,12 @@ def parameter_sets(name: str, cfg: StressConfig) -> list[tuple[dict, bool]]:
             sets.append(({**d, p.name: v}, not _is_weight(p.name)))
         if p.optional and d.get(p.name) is not None:
             sets.append(({**d, p.name: None}, True))
+    # all shape parameters together at their lower / upper bounds (e.g. α_x = α_y = 1)
+    shape = [p for p in _float_params(spec) if not _is_weight(p.name)]
+    for side in ("lower", "upper"):
+        joint = {p.name: getattr(p, side) for p in shape if math.isfinite(getattr(p, side))}
+        if len(joint) > 1:
+            sets.append(({**d, **joint}, True))
     sets += [({**d, **e}, True) for e in extras]
     g = np.random.default_rng(cfg.rng)
     for _ in range(cfg.n_random_sets):
@@ -306,10 +318,28 @@ def parameter_sets(name: str, cfg: StressConfig) -> list[tuple[dict, bool]]:
             else:
                 s[p.name] = float(g.uniform(lo, hi))
         sets.append((s, False))
+    unique: list[tuple[dict, bool]] = []
+    for ps, e in sets:
+        if not any(_same(ps, q) for q, _ in unique):
+            unique.append((ps, e))
+    sets = unique
     if len(sets) > cfg.max_sets:
         keep = np.linspace(0, len(sets) - 1, cfg.max_sets).round().astype(int)
         sets = [sets[i] for i in sorted(set(keep.tolist()))]
     return sets
+
+
+def _same(a: dict, b: dict) -> bool:
+    if a.keys() != b.keys():
+        return False
+    for k in a:
+        x, y = a[k], b[k]
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if x is not y:
+                return False
+        elif x != y:
+            return False
+    return True
 
 
 # --------------------------------------------------------------------------- checks
@@ -333,24 +363,44 @@ def _short_params(params: dict) -> dict:
     return out
 
 
-def _albedo_estimate(model, wi: NDArray, nodes: tuple[int, int]) -> tuple[NDArray, NDArray]:
-    """``(albedo, resolved)`` per ``wi`` (max over bands)."""
+def _albedo_estimate(
+    model, wi: NDArray, nodes: tuple[int, int], analytic: bool, max_seconds: float = np.inf
+) -> tuple[NDArray, NDArray]:
+    """``(albedo, resolved)`` per ``wi`` (max over bands), delta (mirror) part included.
+
+    The model's analytic albedo when ``analytic``; otherwise product Gauss-Legendre at
+    ``nodes``, doubled up to three times until two successive levels agree to 1 %
+    ("resolved"), while ``max_seconds`` lasts.
+    """
     from gonio.brdf.base import hemisphere_integral
 
-    spec = type(model).spec()
-    if spec.analytic_albedo:
-        a = np.asarray(model.albedo(wi), dtype=np.float64).reshape(len(wi), -1).max(-1)
-        return a, np.ones(len(wi), bool)
+    if analytic:
+        a = np.zeros(len(wi))
+        ok = np.zeros(len(wi), bool)
+        t0 = time.perf_counter()
+        for k, w in enumerate(wi):
+            a[k] = np.max(np.asarray(model.albedo(w), dtype=np.float64))
+            ok[k] = True
+            if time.perf_counter() - t0 > max_seconds:
+                break
+        return a, ok
+    mirror = np.asarray(model.delta(wi)[1], dtype=np.float64).reshape(len(wi), -1)
     out = np.zeros(len(wi))
     ok = np.zeros(len(wi), bool)
+    t0 = time.perf_counter()
     for k, w in enumerate(wi):
-        c = hemisphere_integral(lambda o, w=w: model.evaluate_unchecked(w, o), *nodes)
-        f = hemisphere_integral(
-            lambda o, w=w: model.evaluate_unchecked(w, o), 2 * nodes[0], 2 * nodes[1]
-        )
-        c, f = np.max(c), np.max(f)
-        out[k] = f
-        ok[k] = np.isfinite(f) and abs(f - c) <= 0.01 * max(abs(f), 1e-12)
+        n_s, n_phi = nodes
+        prev = None
+        for _ in range(4):  # refine (doubling) until two levels agree to 1 %
+            est = hemisphere_integral(lambda o, w=w: model.evaluate_unchecked(w, o), n_s, n_phi)
+            est = float(np.max(est + mirror[k]))
+            if prev is not None:
+                out[k] = est
+                ok[k] = math.isfinite(est) and abs(est - prev) <= 0.01 * max(abs(est), 1e-12)
+                if ok[k] or time.perf_counter() - t0 > max_seconds:
+                    break
+            prev = est
+            n_s, n_phi = 2 * n_s, 2 * n_phi
     return out, ok
 
 
@@ -372,41 +422,44 @@ def _check_model(name: str, cfg: StressConfig, res: StageResult) -> None:
 
     spec = brdf.spec(name)
     counts = dict.fromkeys(KINDS, 0)
-    counts_extra = {"rejected": 0, "energy_unresolved": 0, "parameter_sets": 0}
+    info: dict[str, Any] = {
+        "parameter_sets": 0,
+        "rejected": 0,
+        "sets_skipped_for_time": 0,
+        "energy_sets": 0,
+        "energy_skipped_for_time": 0,
+        "energy_unresolved": 0,
+        "slowest_set_seconds": 0.0,
+    }
     worst: dict[str, dict] = {}
     g = np.random.default_rng(cfg.rng)
+    deadline = time.perf_counter() + cfg.model_seconds
     sets = parameter_sets(name, cfg)
-    wi0, wo0 = adversarial_pairs(0, g)
-    n_adv = len(wi0)
-    n_rand = cfg.n_random
-    # trim the random pairs to the time budget, using the cost measured on the defaults
-    t_budget = time.perf_counter() + cfg.model_seconds
+    models = []
     energy_wi = np.array([_vec(math.radians(t), 0.7) for t in ENERGY_THETA_DEG])
     max_recip = 0.0
-    for params, check_energy in sets:
+    n_rand = cfg.n_random
+    # value checks: the defaults first, then the other sets while the time budget lasts
+    for k, (params, check_energy) in enumerate(sets):
+        if k > 0 and time.perf_counter() > deadline:
+            info["sets_skipped_for_time"] = len(sets) - k
+            break
+        t_set = time.perf_counter()
         try:
             model = brdf.create(name, **params)
         except ValueError:
-            counts_extra["rejected"] += 1
+            info["rejected"] += 1
             continue
-        counts_extra["parameter_sets"] += 1
-        left = t_budget - time.perf_counter()
+        models.append((model, params, check_energy))
+        info["parameter_sets"] += 1
         wi, wo = adversarial_pairs(n_rand, g)
         for dtype in (np.float64, np.float32):
             a = wi.astype(dtype)
             b = wo.astype(dtype)
             try:
-                t0 = time.perf_counter()
                 v = _flat(model(a, b), len(a))
                 vs = _flat(model(b, a), len(a))
-                dt = time.perf_counter() - t0
-            except ValueError as exc:
-                if "wi" in str(exc) or "wo" in str(exc):
-                    raise
-                counts["error"] += 1
-                _example(res, name, "error", params, repr(exc))
-                continue
-            except Exception as exc:  # noqa: BLE001 - every crash is a finding
+            except Exception as exc:
                 counts["error"] += 1
                 _example(res, name, "error", params, repr(exc))
                 continue
@@ -425,40 +478,58 @@ def _check_model(name: str, cfg: StressConfig, res: StageResult) -> None:
             rel = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
             max_recip = max(max_recip, float(rel.max(initial=0.0)))
             c["reciprocity"] = int(np.count_nonzero(bad_r))
-            for k, n in c.items():
+            for kind, n in c.items():
                 if n:
-                    counts[k] += n
-                    _note_worst(worst, k, params, n, a, b, v, vs, dtype)
-            # trim later random pairs if this model is slow
-            per_pair = dt / max(2 * len(a), 1)
-            if per_pair > 0 and left > 0:
-                n_rand = int(min(cfg.n_random, max(0, left / (per_pair * 8 * len(sets)))))
-            elif left <= 0:
-                n_rand = 0
-        if cfg.energy and check_energy:
-            try:
-                alb, ok = _albedo_estimate(model, energy_wi, cfg.energy_nodes)
-            except Exception as exc:  # noqa: BLE001
-                counts["error"] += 1
-                _example(res, name, "error", params, f"albedo: {exc!r}")
-                continue
-            res.cases += len(energy_wi)
-            counts_extra["energy_unresolved"] += int(np.count_nonzero(~ok))
-            over = ok & (alb > 1.0 + ENERGY_TOL)
-            if over.any():
-                counts["energy"] += int(np.count_nonzero(over))
-                k = int(np.argmax(np.where(over, alb, -np.inf)))
-                w = worst.get("energy")
-                if w is None or alb[k] > w["albedo"]:
-                    worst["energy"] = {
-                        "params": _short_params(params),
-                        "theta_i_deg": ENERGY_THETA_DEG[k],
-                        "albedo": float(alb[k]),
-                        "count": 0,
-                    }
-    _ = n_adv
-    res.counts[name] = {**counts}
-    res.info[name] = {**counts_extra, "max_reciprocity_rel": max_recip}
+                    counts[kind] += n
+                    _note_worst(worst, kind, params, a, b, v, vs, dtype)
+        dt = time.perf_counter() - t_set
+        info["slowest_set_seconds"] = round(max(info["slowest_set_seconds"], dt), 4)
+        if k == 0 and len(sets) > 1:
+            # trim the random pairs so that every set fits in half the budget
+            per_pair = dt / max(len(wi), 1)
+            room = 0.5 * cfg.model_seconds / (len(sets) * per_pair) - (len(wi) - n_rand)
+            n_rand = int(min(cfg.n_random, max(0.0, room)))
+    info["random_pairs_per_set"] = n_rand
+    # energy: at the default weights, shape parameters swept, while the budget lasts
+    todo = [(m, p) for m, p, e in models if e] if cfg.energy else []
+    use_analytic = spec.analytic_albedo and cfg.analytic_albedo
+    for k, (model, params) in enumerate(todo):
+        if k > 0 and time.perf_counter() > deadline + 0.5 * cfg.model_seconds:
+            info["energy_skipped_for_time"] = len(todo) - k
+            break
+        try:
+            t_alb = time.perf_counter()
+            alb, ok = _albedo_estimate(
+                model, energy_wi, cfg.energy_nodes, use_analytic, 0.05 * cfg.model_seconds
+            )
+            if use_analytic and time.perf_counter() - t_alb > 0.05 * cfg.model_seconds:
+                use_analytic = False  # the model's own albedo is slow: use the quadrature
+                info["albedo"] = "quadrature (model's analytic albedo too slow)"
+        except Exception as exc:
+            counts["error"] += 1
+            _example(res, name, "error", params, f"albedo: {exc!r}")
+            continue
+        info["energy_sets"] += 1
+        res.cases += len(energy_wi)
+        nonfinite = ok & ~np.isfinite(alb)
+        if nonfinite.any():
+            counts["nan"] += int(np.count_nonzero(nonfinite))
+            _example(res, name, "nan", params, f"albedo {alb.tolist()} at {ENERGY_THETA_DEG}")
+            ok &= np.isfinite(alb)
+        info["energy_unresolved"] += int(np.count_nonzero(~ok))
+        over = ok & (alb > 1.0 + ENERGY_TOL)
+        if over.any():
+            counts["energy"] += int(np.count_nonzero(over))
+            i = int(np.argmax(np.where(over, alb, -np.inf)))
+            w = worst.get("energy")
+            if w is None or alb[i] > w["albedo"]:
+                worst["energy"] = {
+                    "params": _short_params(params),
+                    "theta_i_deg": ENERGY_THETA_DEG[i],
+                    "albedo": float(alb[i]),
+                }
+    res.counts[name] = dict(counts)
+    res.info[name] = {**info, "max_reciprocity_rel": max_recip}
     for kind in KINDS:
         n = counts[kind]
         if not n:
@@ -467,7 +538,7 @@ def _check_model(name: str, cfg: StressConfig, res: StageResult) -> None:
         if issue is not None:
             entry = {"model": name, "kind": kind, "count": n, "issue": issue}
             if kind in worst:
-                entry["worst"] = {k: v for k, v in worst[kind].items() if k != "count"}
+                entry["worst"] = worst[kind]
             res.known.append(entry)
         else:
             res.unexpected += n
@@ -475,7 +546,7 @@ def _check_model(name: str, cfg: StressConfig, res: StageResult) -> None:
                 _example(res, name, kind, worst[kind].get("params", {}), worst[kind])
 
 
-def _note_worst(worst, kind, params, n, a, b, v, vs, dtype) -> None:
+def _note_worst(worst, kind, params, a, b, v, vs, dtype) -> None:
     if kind in worst:
         return
     if kind == "reciprocity":

@@ -8,10 +8,11 @@ A sweep is a grid ``materials × settings × seeds`` described in a small JSON o
 
 and a task function ``fn(task, out_dir) -> metrics`` that writes whatever files it likes into
 ``out_dir`` and returns a flat dict of numbers (errors, counts). :func:`run_task` runs it in a
-private temporary folder, writes ``summary.json`` there and renames the folder into place
+private temporary folder, writes ``sweep_task.json`` there and renames the folder into place
 (``<root>/tasks/<task id>``) in one atomic step, so a task's result exists completely or not at
 all: a worker killed mid-task leaves only a temporary folder that no reader looks at, and a
-re-run skips every task whose complete ``summary.json`` is present. Two workers racing on the
+re-run skips every task whose complete ``sweep_task.json`` is present. (The name leaves
+``summary.json`` to the task itself: a campaign writes its own there.) Two workers racing on the
 same task (Dask re-running a task it believed lost) cannot write it twice: the second rename
 fails and the loser discards its copy.
 
@@ -42,7 +43,7 @@ import re
 import shutil
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,7 @@ __all__ = [
 ]
 
 EXECUTORS = ("inprocess", "process", "dask")
-SUMMARY = "summary.json"
+SUMMARY = "sweep_task.json"  # the completion record of a task folder
 _SPEC_KEYS = ("name", "description", "task", "materials", "seeds", "settings", "fixed", "plot")
 
 TaskFn = Callable[[dict[str, Any], Path], Mapping[str, Any]]
@@ -428,6 +429,71 @@ def _clean_metrics(metrics: Any, tid: str) -> dict[str, Any]:
     return out
 
 
+class _SingleThreadBLAS:
+    """Context manager: OpenBLAS (numpy's and scipy's) on one thread, restored afterwards.
+
+    A sum computed by a multi-threaded BLAS rounds differently from a single-threaded one
+    (measured: a campaign's χ²/dof differed in the 16th digit in-process, with 2 BLAS threads,
+    and on a Dask worker, which runs BLAS on 1 thread). Every executor therefore runs tasks
+    with single-threaded BLAS, so results are bit-identical wherever they run. Uses
+    ``threadpoolctl`` when installed, else the OpenBLAS libraries' own
+    ``*openblas_set_num_threads*`` through :mod:`ctypes`; a no-op where neither is found.
+    """
+
+    _SUFFIXES = ("64_", "")
+    _PREFIXES = ("scipy_openblas", "openblas")
+
+    def __enter__(self) -> _SingleThreadBLAS:
+        self._restore: list[Callable[[], Any]] = []
+        try:
+            from threadpoolctl import threadpool_limits
+        except ImportError:
+            threadpool_limits = None
+        if threadpool_limits is not None:
+            lim = threadpool_limits(limits=1, user_api="blas")
+            self._restore.append(lim.restore_original_limits)
+            return self
+        for get, set_ in self._openblas():
+            n = int(get())
+            if n != 1:
+                set_(1)
+                self._restore.append(lambda s=set_, n=n: s(n))
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for undo in reversed(self._restore):
+            undo()
+
+    @classmethod
+    def _openblas(cls) -> list[tuple[Any, Any]]:
+        import ctypes
+
+        import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, used by the fits)
+
+        found = []
+        try:
+            with open("/proc/self/maps", encoding="utf-8", errors="replace") as fh:
+                paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and "/" in ln}
+        except OSError:  # not Linux: nothing to do without threadpoolctl
+            return found
+        for path in sorted(paths):
+            try:
+                lib = ctypes.CDLL(path)
+            except OSError:
+                continue
+            for pre in cls._PREFIXES:
+                for suf in cls._SUFFIXES:
+                    get = getattr(lib, f"{pre}_get_num_threads{suf}", None)
+                    set_ = getattr(lib, f"{pre}_set_num_threads{suf}", None)
+                    if get is not None and set_ is not None:
+                        found.append((get, set_))
+                        break
+                else:
+                    continue
+                break
+        return found
+
+
 def run_task(
     task: Mapping[str, Any],
     root: str | os.PathLike,
@@ -435,10 +501,10 @@ def run_task(
 ) -> dict[str, Any]:
     """Run one task idempotently under ``root/tasks/<task id>`` and return its summary.
 
-    If the task's complete ``summary.json`` exists it is returned without running anything
+    If the task's complete ``sweep_task.json`` exists it is returned without running anything
     (with ``"skipped": True`` added to the returned dict, never to the file). Otherwise ``fn``
     (default: the task's registered function) runs in a fresh temporary folder; its metrics
-    and wall time go to ``summary.json`` (written atomically) and the folder is renamed into
+    and wall time go to ``sweep_task.json`` (written atomically) and the folder is renamed into
     place. If another worker finished the same task meanwhile, its result wins and ours is
     discarded.
     """
@@ -458,7 +524,8 @@ def run_task(
     tmp.mkdir()
     try:
         t0 = time.perf_counter()
-        metrics = _clean_metrics(fn(task, tmp), tid)
+        with _SingleThreadBLAS():
+            metrics = _clean_metrics(fn(task, tmp), tid)
         wall = time.perf_counter() - t0
         summary = {
             "task_id": tid,
@@ -588,26 +655,21 @@ def _dask_client(scheduler: str | None, dask_local: int | None):
     return Client(cluster), cluster
 
 
-def _run_dask(tasks, root, fn, client, retries, progress):
+def _run_dask(tasks, root, fn, client, progress):
     from distributed import as_completed
 
-    futs = [
-        client.submit(
-            _run_task_entry,
-            t,
-            root,
-            fn,
-            key=f"gonio-sweep-{task_id(t)}",
-            pure=False,
-            retries=retries,
-        )
-        for t in tasks
-    ]
-    for fut in as_completed(futs):
+    # Dask reschedules the tasks of a lost worker by itself (up to its allowed-failures
+    # setting); errors come back as records and run_sweep retries them
+    futs = {}
+    for t in tasks:
+        tid = task_id(t)
+        key = f"gonio-sweep-{tid}-{uuid.uuid4().hex[:8]}"
+        futs[client.submit(_run_task_entry, t, root, fn, key=key)] = tid
+    for fut in as_completed(list(futs)):
         try:
             res = fut.result()
         except Exception as exc:  # KilledWorker after too many lost workers, etc.
-            res = {"task_id": fut.key.removeprefix("gonio-sweep-"), "error": repr(exc)}
+            res = {"task_id": futs[fut], "error": f"{type(exc).__name__}: {exc}"}
         progress(res)
         yield res
 
@@ -673,36 +735,36 @@ def run_sweep(
     t0 = time.perf_counter()
     startup = 0.0
     results: dict[str, dict] = {}
-    if executor == "inprocess":
-        it = _run_inprocess(tasks, str(root), fn, progress)
-        results = {r["task_id"]: r for r in it}
-        # in-process retries: a task that raised is simply run again
-        for _ in range(retries):
-            again = [t for t in tasks if "error" in results[task_id(t)]]
-            if not again:
-                break
-            results.update(
-                {r["task_id"]: r for r in _run_inprocess(again, str(root), fn, progress)}
-            )
-    elif executor == "process":
+    own = None
+    w = 1
+    if executor == "process":
         w = int(workers or os.cpu_count() or 1)
         if w < 1:
             raise ValueError(f"workers must be >= 1, got {workers!r}")
-        results = {
-            r["task_id"]: r for r in _run_process(tasks, str(root), fn, w, retries, progress)
-        }
-    else:
-        own = None
-        if client is None:
-            client, own = _dask_client(scheduler, dask_local)
-            startup = time.perf_counter() - t0
-        try:
-            it = _run_dask(tasks, str(root), fn, client, retries, progress)
-            results = {r["task_id"]: r for r in it}
-        finally:
-            if own is not None:
-                client.close()
-                own.close()
+    elif executor == "dask" and client is None:
+        client, own = _dask_client(scheduler, dask_local)
+        startup = time.perf_counter() - t0
+
+    def execute(batch: list[dict]) -> Iterator[dict]:
+        if executor == "inprocess":
+            return _run_inprocess(batch, str(root), fn, progress)
+        if executor == "process":
+            return _run_process(batch, str(root), fn, w, retries, progress)
+        return _run_dask(batch, str(root), fn, client, progress)
+
+    try:
+        results = {r["task_id"]: r for r in execute(tasks)}
+        # a task that raised (or whose worker was lost too often) is run again; finished
+        # tasks are never repeated (run_task skips them)
+        for _ in range(retries):
+            again = [t for t in tasks if "error" in results.get(task_id(t), {"error": ""})]
+            if not again:
+                break
+            results.update({r["task_id"]: r for r in execute(again)})
+    finally:
+        if own is not None:
+            client.close()
+            own.close()
     wall = time.perf_counter() - t0
 
     rows, timings, failures = [], [], {}

@@ -40,7 +40,14 @@ __all__ = [
     "Stage",
     "StageFault",
     "default_camera_render",
+    "CORNELL_PIXELS",
+    "CORNELL_TARGET_MM",
+    "CORNELL_WHEEL_DEG",
+    "LBL_CHANGER_MM",
+    "cornell_positions",
+    "cornell_spectrum_render",
     "default_spectrum_render",
+    "lbl_camera_render",
     "simulator_renderers",
 ]
 
@@ -332,20 +339,103 @@ _INSTRUMENT_STAGES: dict[str, tuple[tuple[str, dict], ...]] = {
     # LBL imaging gonioreflectometer (Ward 1992): the source arm swings in the incidence
     # plane (θ_i), the sample holder turns about its normal (ψ, φ_i = arm azimuth − ψ); the
     # third controller axis is a spare tilt stage. Names follow gonio.simulator.lbl's
-    # ``camera_render(source_axis="source", sample_axis="sample")``.
+    # ``camera_render(source_axis="source", sample_axis="sample")``. A fourth stage, the
+    # sample changer (a linear slide on a second controller), puts the sample, the
+    # reflectance standard or nothing (background) under the dome: :data:`LBL_CHANGER_MM`.
     "lbl": (
         ("source", {"lower": -5.0, "upper": 95.0, "speed": 10.0, "acceleration": 40.0}),
         ("sample", {"lower": -360.0, "upper": 360.0, "speed": 30.0, "acceleration": 90.0}),
         ("tilt", {"lower": -45.0, "upper": 45.0, "speed": 5.0, "acceleration": 20.0}),
+        (
+            "changer",
+            {"units": "mm", "lower": -1.0, "upper": 80.0, "speed": 50.0, "acceleration": 200.0},
+        ),
     ),
-    # Cornell three-axis instrument (gonio.simulator.cornell axes): detector arm, turntable,
-    # sample tilt.
+    # Cornell three-axis instrument (gonio.simulator.cornell axes): source arm, turntable,
+    # sample tilt (speeds and accelerations of gonio.simulator.cornell.BENCH_STAGES, the ones
+    # its run-time estimate assumes), then the accessories on a second controller: the
+    # polariser (0° = s, 90° = p), the target slide (:data:`CORNELL_TARGET_MM`) and the
+    # filter wheel (:data:`CORNELL_WHEEL_DEG`: open, ND filter, blank = shutter closed).
     "cornell": (
-        ("arm", {"lower": -180.0, "upper": 180.0, "speed": 10.0, "acceleration": 40.0}),
-        ("turntable", {"lower": -360.0, "upper": 360.0, "speed": 20.0, "acceleration": 60.0}),
-        ("tilt", {"lower": -95.0, "upper": 95.0, "speed": 10.0, "acceleration": 40.0}),
+        ("arm", {"lower": -180.0, "upper": 180.0, "speed": 5.0, "acceleration": 10.0}),
+        ("turntable", {"lower": -360.0, "upper": 360.0, "speed": 10.0, "acceleration": 20.0}),
+        ("tilt", {"lower": -95.0, "upper": 95.0, "speed": 10.0, "acceleration": 20.0}),
+        ("polarizer", {"lower": -10.0, "upper": 190.0, "speed": 90.0, "acceleration": 360.0}),
+        (
+            "target",
+            {"units": "mm", "lower": -1.0, "upper": 80.0, "speed": 50.0, "acceleration": 200.0},
+        ),
+        ("wheel", {"lower": -10.0, "upper": 370.0, "speed": 120.0, "acceleration": 480.0}),
     ),
 }
+
+#: LBL sample changer stations (mm): what sits under the dome.
+LBL_CHANGER_MM = {"sample": 0.0, "standard": 25.0, "empty": 50.0}
+#: Cornell target slide stations (mm), in the order of ``gonio.simulator.cornell.TARGETS``.
+CORNELL_TARGET_MM = {"sample": 0.0, "standard": 25.0, "beam_trap": 50.0, "direct": 75.0}
+#: Cornell filter wheel stations (deg): open, ND filter in, blank (the shutter).
+CORNELL_WHEEL_DEG = {"open": 0.0, "nd": 60.0, "blank": 120.0}
+#: Spectrometer pixels of the Cornell bench (its 1024-pixel spectroradiometer).
+CORNELL_PIXELS = 1024
+
+
+def _station(value: float, stations: Mapping[str, float], tol: float) -> str | None:
+    """The station ``value`` sits at (within ``tol``), else ``None`` (between stations)."""
+    for name, pos in stations.items():
+        if abs(float(value) - pos) <= tol:
+            return name
+    return None
+
+
+def cornell_positions(positions: Mapping[str, float]) -> dict[str, float]:
+    """Bench stage positions → the keys ``CornellInstrument.spectrum_render`` takes.
+
+    ``arm``, ``turntable``, ``tilt`` and ``polarizer`` pass through (degrees); the target
+    slide becomes ``target`` (0 sample, 1 standard, 2 beam trap, 3 direct beam; between
+    stations the beam falls on the trap), the filter wheel ``shutter`` (0 on the blank or
+    between stations) and ``filter`` (1 with the ND filter in).
+    """
+    out = {k: float(positions[k]) for k in ("arm", "turntable", "tilt") if k in positions}
+    if "polarizer" in positions:
+        out["polarizer"] = float(positions["polarizer"])
+    if "target" in positions:
+        st = _station(positions["target"], CORNELL_TARGET_MM, 0.5)
+        order = list(CORNELL_TARGET_MM)
+        out["target"] = float(order.index(st) if st is not None else order.index("beam_trap"))
+    if "wheel" in positions:
+        st = _station(float(positions["wheel"]) % 360.0, CORNELL_WHEEL_DEG, 1.0)
+        out["shutter"] = 0.0 if st in (None, "blank") else 1.0
+        out["filter"] = 1.0 if st == "nd" else 0.0
+    return out
+
+
+def cornell_spectrum_render(render: SpectrumRender) -> SpectrumRender:
+    """Wrap a Cornell ``spectrum_render`` so that it reads the bench's accessory stages."""
+
+    def spectrum(positions: Mapping[str, float], integration_s: float, wavelengths_nm):
+        return render(cornell_positions(positions), integration_s, wavelengths_nm)
+
+    spectrum.__wrapped__ = render  # type: ignore[attr-defined]
+    return spectrum
+
+
+def lbl_camera_render(renders: Mapping[str, CameraRender]) -> CameraRender:
+    """A camera render that shows ``renders["sample" | "standard" | "empty"]`` according to
+    the sample changer stage (``positions["changer"]``, :data:`LBL_CHANGER_MM`; between
+    stations: the empty holder). Without a changer stage: the sample."""
+
+    def camera(positions: Mapping[str, float], exposure_s: float, f_number: float):
+        if "changer" in positions:
+            st = _station(positions["changer"], LBL_CHANGER_MM, 0.5) or "empty"
+        else:
+            st = "sample"
+        pos = {k: v for k, v in positions.items() if k != "changer"}
+        img, meta = renders[st](pos, exposure_s, f_number)
+        meta = dict(meta)
+        meta["changer"] = st
+        return img, meta
+
+    return camera
 
 
 def simulator_renderers(
@@ -360,7 +450,11 @@ def simulator_renderers(
     ``"lbl"``: the camera is :meth:`gonio.simulator.lbl.LBLInstrument.camera_render` of the
     sample ``material`` (default: the Lambertian reflectance ``"standard"``). ``"cornell"``:
     the spectrometer is ``gonio.simulator.cornell.CornellInstrument(brdf).spectrum_render``
-    (default BRDF: Lambertian). A missing simulator module gives ``None`` (built-in default).
+    (default BRDF: Lambertian; an int ``rng`` is the instrument's noise seed, so that a bench
+    with ``rng=s`` reads the same noise as ``CornellInstrument(brdf, rng=s)`` in-process)
+    behind :func:`cornell_spectrum_render`. The LBL camera shows the sample, the standard or
+    the empty holder according to the changer stage (:func:`lbl_camera_render`). A missing
+    simulator module gives ``None`` (built-in default).
     """
     import importlib
 
@@ -370,14 +464,14 @@ def simulator_renderers(
         except ImportError:
             return None, None
         inst = lbl.LBLInstrument()
-        cam = inst.camera_render(
-            material or "standard",
-            source_axis="source",
-            sample_axis="sample",
-            rng=rng,
-            noise=noise,
-        )
-        return cam, None
+        gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        kw = dict(source_axis="source", sample_axis="sample", rng=gen, noise=noise)
+        cams = {
+            "sample": inst.camera_render(material or "standard", **kw),
+            "standard": inst.camera_render("standard", **kw),
+            "empty": inst.camera_render(None, **kw),
+        }
+        return lbl_camera_render(cams), None
     if instrument == "cornell":
         try:
             cornell = importlib.import_module("gonio.simulator.cornell")
@@ -387,7 +481,7 @@ def simulator_renderers(
 
         model = materials.get(material) if material else brdf.create("lambert")
         inst = cornell.CornellInstrument(model, noise=noise, rng=rng)
-        return None, inst.spectrum_render
+        return None, cornell_spectrum_render(inst.spectrum_render)
     raise ValueError(f"instrument={instrument!r}: expected 'lbl' or 'cornell'")
 
 
@@ -407,6 +501,9 @@ class Bench:
         pixel index p, as stored in a USB2000+'s EEPROM slots 1-4.
     instrument, material : str, optional
         Labels recorded in metadata.
+    n_pixels : int
+        Pixels of the spectrometer's detector (2048 for a USB2000+; the Cornell bench's
+        spectroradiometer has 1024). The fake USB2000+ reports and sends this many.
     """
 
     def __init__(
@@ -419,7 +516,10 @@ class Bench:
         wavelength_coeffs: tuple[float, float, float, float] = (339.7, 0.3825, -1.71e-5, -1.1e-9),
         instrument: str | None = None,
         material: str | None = None,
+        n_pixels: int = 2048,
     ) -> None:
+        if int(n_pixels) != n_pixels or n_pixels < 1 or n_pixels > 8192:
+            raise ValueError(f"n_pixels={n_pixels!r}: expected an integer 1..8192")
         if stages is None:
             stages = [Stage(f"axis{i}") for i in (1, 2, 3)]
         names = [s.name for s in stages]
@@ -432,6 +532,7 @@ class Bench:
         self.wavelength_coeffs = tuple(float(c) for c in wavelength_coeffs)
         self.instrument = instrument
         self.material = material
+        self.n_pixels = int(n_pixels)
         self.lock = threading.RLock()
 
     @classmethod
@@ -450,7 +551,9 @@ class Bench:
 
         With ``simulate=True`` the camera / spectrometer render through the instrument
         simulators (:func:`simulator_renderers`; ``noise`` passed on); otherwise, or where a
-        simulator is missing, through the built-in defaults. ``stage_kw`` overrides the
+        simulator is missing, through the built-in defaults. The Cornell bench's spectrometer
+        has the simulator's pixel count and wavelength calibration
+        (``gonio.simulator.cornell.CornellConfig``). ``stage_kw`` overrides the
         physics of every stage (e.g. ``backlash=0.01, noise=0.002``).
         """
         if instrument not in _INSTRUMENT_STAGES:
@@ -463,15 +566,29 @@ class Bench:
             for name, kw in _INSTRUMENT_STAGES[instrument]
         ]
         cam = spec = None
+        coeffs: tuple[float, ...] = (339.7, 0.3825, -1.71e-5, -1.1e-9)
+        n_pixels = 2048
+        if instrument == "cornell":
+            n_pixels = CORNELL_PIXELS
+            try:
+                from gonio.simulator.cornell import CornellConfig
+
+                cfg = CornellConfig()
+                coeffs, n_pixels = tuple(cfg.wavelength_coeffs), int(cfg.n_pixels)
+            except ImportError:
+                pass
         if simulate:
-            cam, spec = simulator_renderers(instrument, material, rng=gen, noise=noise)
+            seed = rng if instrument == "cornell" and isinstance(rng, int | np.integer) else gen
+            cam, spec = simulator_renderers(instrument, material, rng=seed, noise=noise)
         return cls(
             stages,
             time_scale=time_scale,
             camera_render=cam,
             spectrum_render=spec,
+            wavelength_coeffs=coeffs,  # type: ignore[arg-type]
             instrument=instrument,
             material=material,
+            n_pixels=n_pixels,
         )
 
     # -- stage access ---------------------------------------------------------------------
@@ -494,13 +611,15 @@ class Bench:
         return {n: s.motor_position(t) for n, s in self.stages.items()}
 
     # -- detectors ------------------------------------------------------------------------
-    def wavelengths(self, n_pixels: int = 2048) -> np.ndarray:
-        p = np.arange(n_pixels, dtype=np.float64)
+    def wavelengths(self, n_pixels: int | None = None) -> np.ndarray:
+        """Wavelength (nm) of each spectrometer pixel (default: :attr:`n_pixels` of them)."""
+        p = np.arange(self.n_pixels if n_pixels is None else n_pixels, dtype=np.float64)
         c = self.wavelength_coeffs
         return c[0] + c[1] * p + c[2] * p**2 + c[3] * p**3
 
-    def render_spectrum(self, integration_s: float, n_pixels: int = 2048) -> np.ndarray:
+    def render_spectrum(self, integration_s: float, n_pixels: int | None = None) -> np.ndarray:
         """Counts per pixel (uint16 range) for the current stage positions."""
+        n_pixels = self.n_pixels if n_pixels is None else int(n_pixels)
         counts = self.spectrum_render(
             self.positions(), float(integration_s), self.wavelengths(n_pixels)
         )

@@ -56,10 +56,6 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
-from gonio.brdf.base import BRDF, as_brdf
-from gonio.samples import BRDFSamples
 from gonio.simulator.cornell_kinematics import AXES, Kinematics, forward, inverse
 from gonio.simulator.cornell_plans import (
     Plan,
@@ -71,11 +67,15 @@ from gonio.simulator.cornell_plans import (
     read_plan_csv,
 )
 from gonio.simulator.spectra import detector_response, halogen_spectrum, spectralon_reflectance
+from numpy.typing import ArrayLike, NDArray
+
+from gonio.brdf.base import BRDF, as_brdf
+from gonio.samples import BRDFSamples
 
 __all__ = [
     "AXES",
-    "BENCH_STAGES",
     "BANDS_NM",
+    "BENCH_STAGES",
     "CornellConfig",
     "CornellInstrument",
     "Kinematics",
@@ -151,8 +151,15 @@ class CornellConfig:
     n_reference_reads: int = 16  # reads averaged for the reference (its noise is common to all)
 
     def __post_init__(self) -> None:
-        for name in ("source_solid_angle", "detector_solid_angle", "standard_peak_rate",
-                     "gain_e_per_count", "filter_transmission", "t_min", "t_preview"):
+        for name in (
+            "source_solid_angle",
+            "detector_solid_angle",
+            "standard_peak_rate",
+            "gain_e_per_count",
+            "filter_transmission",
+            "t_min",
+            "t_preview",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} = {v!r}: expected a positive number")  # fmt: skip
@@ -260,9 +267,10 @@ class Reference:
     """Reference rates measured at the start of a campaign.
 
     ``rate[q]``: net counts/s per pixel of the standard (or of the direct beam, corrected for
-    the filter), stray light removed; ``stray[q]``: beam-trap counts/s per pixel; ``mode``:
-    ``"standard"`` or ``"direct"``; ``scale``: per-pixel factor turning rate ratios into
-    ``f · cos θi`` (``ρ_std/π · cos θi_ref`` or ``T_filter... / Ω_s``).
+    the ND filter) with the stray light removed; ``stray[q]``: beam-trap counts/s per pixel;
+    ``mode``: ``"standard"`` or ``"direct"``; ``scale``: per-pixel factor turning a rate ratio
+    into ``f · cos θi`` (``ρ_std(λ)/π · cos θi_ref`` for the standard, ``1/Ω_s`` for the
+    direct beam).
     """
 
     mode: str
@@ -369,8 +377,10 @@ class CornellInstrument:
         self._k_cache: dict[tuple, NDArray] = {}
         self.angles = np.zeros(3)
         self.stats = {"conv_full": 0, "conv_skipped": 0}
-        self._white = self.config.standard_peak_rate * math.pi / (
-            0.99 * math.cos(math.radians(self.config.reference_theta_i_deg))
+        self._white = (
+            self.config.standard_peak_rate
+            * math.pi
+            / (0.99 * math.cos(math.radians(self.config.reference_theta_i_deg)))
         )
         c = self.config
         self._std = as_brdf("lambert", rho=1.0)
@@ -452,7 +462,8 @@ class CornellInstrument:
             beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
             area = _lens_area(beta, self._alpha_s, self._alpha_d)
             c = self.config
-            w = area / (math.pi * self._alpha_s**2 * c.detector_solid_angle)  # = A/(Ω_s Ω_d)
+            # A/(Ω_s Ω_d), the planar lens area rescaled to solid angle (exact when inside)
+            w = area / (math.pi * self._alpha_d**2 * c.source_solid_angle)
             w = w / np.where(ci > 0, ci, 1.0)
             out = out + (rho * w[:, None] if rho.ndim == 2 else rho * w)
         return out
@@ -515,7 +526,7 @@ class CornellInstrument:
         pol = positions.get("polarizer")
         q = None if pol is None else ("s" if abs(float(pol) % 180.0) < 45.0 else "p")
         shutter = float(positions.get("shutter", 1.0)) >= 0.5
-        target = int(round(float(positions.get("target", 0.0))))
+        target = round(float(positions.get("target", 0.0)))
         filt = float(positions.get("filter", 0.0)) >= 0.5
         if target not in TARGETS.values():
             raise ValueError(f"target = {target!r}: expected one of {TARGETS}")
@@ -523,7 +534,10 @@ class CornellInstrument:
         if not shutter:
             return counts
         k = self._spectral_k(wl, q)
-        if target == TARGETS["sample"]:
+        blocked = abs(_wrap_deg(float(positions["arm"]))) < math.degrees(c.kinematics.retro_cone)
+        if blocked and target in (TARGETS["sample"], TARGETS["standard"]):
+            sig = np.zeros(wl.shape)  # the arm sits between the sample and the folding mirror
+        elif target == TARGETS["sample"]:
             fconv, ci = self._conv_at(ang)
             sig = k * self._f_pixels(fconv, wl) * max(ci, 0.0)
         elif target == TARGETS["standard"]:
@@ -548,8 +562,9 @@ class CornellInstrument:
         ``positions`` (degrees, the bench's stage units): ``"arm"``, ``"turntable"``,
         ``"tilt"``; optional ``"polarizer"`` (0 = s, 90 = p, absent = no polariser),
         ``"shutter"`` (1 open, 0 closed), ``"target"`` (0 sample, 1 standard, 2 beam trap,
-        3 direct beam), ``"filter"`` (1 = ND filter in). ``wavelengths_nm``: the pixels
-        (default the instrument's own). This is the ``spectrum_render`` of
+        3 direct beam), ``"filter"`` (1 = ND filter in). With ``|arm|`` inside the 7° retro cone
+        the arm blocks the view of the sample (no signal, stray light only). ``wavelengths_nm``:
+        the pixels (default the instrument's own). This is the ``spectrum_render`` of
         ``gonio.simulator.bench.Bench``.
         """
         c = self.config
@@ -557,11 +572,11 @@ class CornellInstrument:
         mean = self.expected_counts(positions, integration_time_s, wl)
         if self.noise:
             key = (
-                *(int(round(float(positions[k]) * 1e4)) + 2**40 for k in AXES),
-                int(round(float(integration_time_s) * 1e6)),
-                int(round(float(positions.get("polarizer", -1.0)))) + 1000,
+                *(round(float(positions[k]) * 1e4) + 2**40 for k in AXES),
+                round(float(integration_time_s) * 1e6),
+                round(float(positions.get("polarizer", -1.0))) + 1000,
                 int(float(positions.get("shutter", 1.0)) >= 0.5),
-                int(round(float(positions.get("target", 0.0)))),
+                round(float(positions.get("target", 0.0))),
                 int(float(positions.get("filter", 0.0)) >= 0.5),
                 int(wl.shape[0]),
             )
@@ -647,16 +662,23 @@ class CornellInstrument:
         else:
             raise ValueError(f"reference mode = {mode!r}: expected 'standard' or 'direct'")
         raws = self.measure_raw(target, n_reads=max(1, int(c.n_reference_reads)))
+        # stray light: beam trap at t_max, averaged like the reference
         stray, rate = {}, {}
+        n_avg = max(1, int(c.n_reference_reads))
         for q in ("s", "p"):
-            dark = self.read(c.t_max, polarizer=q, shutter=False, target="beam_trap")
-            trap = self.read(c.t_max, polarizer=q, target="beam_trap")
+            kw = dict(polarizer=q, target="beam_trap")
+            dark = np.mean([self.read(c.t_max, shutter=False, **kw) for _ in range(n_avg)], 0)
+            trap = np.mean([self.read(c.t_max, **kw) for _ in range(n_avg)], 0)
             stray[q] = _net_rate(trap, dark, c.t_max, 1.0, c)[0]
             r = raws[q]
             tr = c.filter_transmission if r["filter"] else 1.0
             rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
         self.angles = saved
         return Reference(mode, wl, rate, stray, scale, {"t": raws["s"]["t"]})
+
+
+def _wrap_deg(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
 
 
 def _as_sample(sample: Any) -> BRDF:
@@ -714,7 +736,7 @@ def simulate_campaign(
         vals[j], sigs[j], t_int[j] = v, s, raws["s"]["t"]
         n_sat += int(sat)
     if not noise:
-        sigs[:] = 0.0
+        sigs[:] = np.nan  # no noise: standard errors unknown (not zero), as gonio.fit expects
     est = estimate_run_time(p, timing, t_int)
     meta = {
         "instrument": "cornell",

@@ -24,10 +24,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from gonio.simulator.cornell_kinematics import Kinematics, inverse
 from numpy.typing import ArrayLike, NDArray
 
 from gonio.geometry import shirley_chiu_square_to_disk, to_vector, uniform_hemisphere_grid
-from gonio.simulator.cornell_kinematics import Kinematics, inverse
 
 __all__ = [
     "Plan",

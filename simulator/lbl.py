@@ -144,6 +144,8 @@ def _trace_geometry(mirror: Mirror, lens: FisheyeLens, sample_radius: float) -> 
 
 
 _GEOMETRY_CACHE: dict[tuple, Geometry] = {}
+#: most instrument geometries kept (a 1024 x 1024 one takes about 60 MB)
+_GEOMETRY_CACHE_SIZE = 8
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -170,6 +172,11 @@ def _check_positive(value: Any, name: str) -> float:
 
 def _json_value(v: Any) -> Any:
     if isinstance(v, np.ndarray):
+        if v.size > 64:  # e.g. a measured table: record its identity, not its content
+            import hashlib
+
+            a = np.ascontiguousarray(v, dtype=np.float64)
+            return {"ndarray_shape": list(v.shape), "sha256": hashlib.sha256(a).hexdigest()}
         return v.tolist()
     if isinstance(v, np.generic):
         return v.item()
@@ -393,6 +400,8 @@ class LBLInstrument:
         g = _GEOMETRY_CACHE.get(key)
         if g is None:
             g = _trace_geometry(self.mirror, self.lens, self.sample_radius)
+            while len(_GEOMETRY_CACHE) >= _GEOMETRY_CACHE_SIZE:  # drop the oldest
+                _GEOMETRY_CACHE.pop(next(iter(_GEOMETRY_CACHE)))
             _GEOMETRY_CACHE[key] = g
         return g
 
@@ -517,7 +526,7 @@ class LBLInstrument:
             wx, wy, wz, qx, qy = g.wx, g.wy, g.wz, g.qx, g.qy
         else:
             # the "no skip" reference of the benchmark: evaluate the BRDF on every pixel of
-            # the image circle, mask afterwards, then keep the candidates' values
+            # the image, mask afterwards, then keep the candidates' values
             wx, wy, wz, qx, qy, on, pos = self._all_field_arrays()
         p = qx * bx + qy * by
         litb = (qx * qx + qy * qy - p * p <= r2) & (wz > 0.0)
@@ -545,15 +554,20 @@ class LBLInstrument:
         return self._ones_c
 
     def _all_field_arrays(self):
-        """Traced arrays for every in-field pixel (benchmark reference for the visible skip)."""
+        """Traced arrays for EVERY pixel of the image (benchmark reference for the skip of
+        pixels outside the image circle or seeing no illuminated sample)."""
         if getattr(self, "_field_arrays", None) is None:
             g = self.geometry
-            tr = self.mirror.trace(g.field_dirs)
+            uv = self.lens.pixel_grid().reshape(-1, 2)
+            tr = self.mirror.trace(self.lens.unproject(uv))
             q = tr["sample_point"] - self.mirror.sample_position
-            on = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= self.sample_radius**2)
+            on = (
+                tr["valid"]
+                & self.lens.in_field(uv)
+                & (q[:, 0] ** 2 + q[:, 1] ** 2 <= self.sample_radius**2)
+            )
             wo = tr["wo"]
-            pos = np.searchsorted(g.field_idx, g.idx)
-            self._field_arrays = (wo[:, 0], wo[:, 1], wo[:, 2], q[:, 0], q[:, 1], on, pos)
+            self._field_arrays = (wo[:, 0], wo[:, 1], wo[:, 2], q[:, 0], q[:, 1], on, g.idx)
         return self._field_arrays
 
     def _add_delta(
@@ -1036,7 +1050,8 @@ class LBLInstrument:
 
         ``positions`` maps stage names to degrees: ``positions[source_axis]`` is θ_i (source
         arm) and ``positions[sample_axis]`` the sample-holder rotation ψ, so that
-        ``φ_i = arm_azimuth - ψ``. Successive calls draw fresh noise from one generator.
+        ``φ_i = arm_azimuth - ψ``; a negative arm angle means the arm swung through the
+        zenith (θ_i = |θ|, φ_i + π). Successive calls draw fresh noise from one generator.
         """
         gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
@@ -1049,7 +1064,9 @@ class LBLInstrument:
                     f"positions {positions!r} lack the source axis {source_axis!r}"
                 ) from None
             phi = self.source.arm_azimuth - rot
-            phi = (phi + math.pi) % (2 * math.pi) - math.pi
+            if th < 0.0:  # the arm swung through the zenith: same as +|θ| on the far side
+                th, phi = -th, phi + math.pi
+            phi = math.pi - (math.pi - phi) % (2 * math.pi)  # in (-π, π]
             return self.capture(
                 sample, th, phi, exposure=exposure_s, f_number=f_number, rng=gen, noise=noise
             )
@@ -1094,8 +1111,13 @@ def reproduce(
             from gonio import brdf
 
             b = meta["brdf"]
-            if b["name"] == "callable":
-                raise ValueError("the capture imaged a plain callable; pass it as sample")
+            if b["name"] in ("callable", "sum") or any(
+                isinstance(v, dict) and "sha256" in v for v in b["params"].values()
+            ):
+                raise ValueError(
+                    f"the capture imaged a {b['name']!r} BRDF that metadata cannot rebuild "
+                    "(a callable, a sum or a large table); pass it as sample"
+                )
             sample = brdf.create(b["name"], **b["params"])
     if meta.get("seed") is None and meta.get("noise"):
         raise ValueError("the capture used a caller's Generator; its seed was not recorded")

@@ -155,3 +155,26 @@ def test_bad_plans_raise(kw, match):
         campaign.Plan(**kw).resolved()
     with pytest.raises(ValueError, match="unknown plan field"):
         campaign.Plan.from_dict({"colour": "red"})
+
+
+def test_progress_bar_draws_only_when_asked_and_clears():
+    import io
+
+    from gonio.progress import Progress
+
+    buf = io.StringIO()
+    with Progress(4, "capture", stream=buf, force=True, min_time=0.0) as bar:
+        for _ in range(4):
+            bar.update()
+    text = buf.getvalue()
+    assert "capture [" in text and "4/4" in text and text.endswith("\r")
+    quiet = io.StringIO()
+    with Progress(4, "x", stream=quiet, force=True, quiet=True) as bar:
+        bar.update(4)
+    assert quiet.getvalue() == ""
+    late = io.StringIO()  # not a terminal, not forced: silent
+    with Progress(2, "x", stream=late, min_time=0.0) as bar:
+        bar.update(2)
+    assert late.getvalue() == ""
+    with pytest.raises(ValueError, match="total"):
+        Progress(-1)

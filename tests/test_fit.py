@@ -342,3 +342,33 @@ def test_log_residual_excludes_nonpositive_samples():
     r = fit.fit(s, "ward", residual="log")
     assert r.n_excluded == 5
     assert r.params["alpha_x"] == pytest.approx(0.05, rel=1e-6)
+
+
+def test_multistart_on_a_large_table_screens_a_subset_and_polishes_on_all(monkeypatch):
+    monkeypatch.setattr(fit, "SCREEN_ROWS", 500)
+    true = brdf.create("ward", **BRASS)
+    s = _samples(true, noise=0.05, seed=2, n_ti=6, n_o=100)
+    one = fit.fit(s, "ward")
+    many = fit.fit(s, "ward", n_starts=3, rng=4)
+    assert len(s) > 500 and many.n_starts == 4
+    for k in BRASS:
+        assert many.params[k] == pytest.approx(one.params[k], rel=1e-6)
+    assert many.n_samples == len(s)
+
+
+def test_lafortune_lobes_are_flattened_and_recovered():
+    """Two generalized lobes + diffuse (Lafortune eq. 8), anisotropic C_x != C_y."""
+    true = brdf.create(
+        "lafortune", lobes=[(-0.9, -0.7, 0.8, 20.0), (0.5, 0.5, 0.4, 3.0)], rho_d=0.2
+    )
+    s = _samples(true, n_ti=6, n_o=120)
+    template = brdf.create("lafortune", lobes=[(-1.0, -1.0, 1.0, 10.0)] * 2)
+    r = fit.fit(s, template, rng=3)
+    assert r.converged
+    assert "lobes[1].c_z" in r.params and "r_m" in r.fixed  # the mirror term is held
+    assert r.rms < 1e-6 * float(np.max(s.value))
+    got = sorted(r.model.params["lobes"], key=lambda lb: lb[3])
+    want = sorted(true.params["lobes"], key=lambda lb: lb[3])
+    for g, w in zip(got, want):
+        assert np.allclose(g[:4], w[:4], rtol=1e-4)
+    assert r.params["rho_d"] == pytest.approx(0.2, rel=1e-4)

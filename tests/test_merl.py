@@ -124,3 +124,23 @@ def test_tabulate_shapes():
     assert 0.3 < up.mean() < 1.0  # cell centres with a direction below the horizon give 0
     tab = brdf.create("tabulated", data=np.stack([t, 2 * t, 3 * t]))
     assert tab.n_bands == 3
+
+
+def test_merl_angles_equal_geometry_difference_half_angles():
+    from gonio.geometry import difference_half_angles
+    from gonio.merl import merl_angles
+
+    rng = np.random.default_rng(4)
+    w = rng.normal(size=(2, 5000, 3))
+    w[..., 2] = np.abs(w[..., 2])
+    w /= np.linalg.norm(w, axis=-1, keepdims=True)
+    th, td, pd = merl_angles(w[0], w[1])
+    th2, _, td2, pd2 = difference_half_angles(w[0], w[1])
+    np.testing.assert_allclose(th, th2, atol=1e-12)
+    np.testing.assert_allclose(td, td2, atol=1e-12)
+    dp = np.abs((pd - np.mod(pd2, np.pi) + np.pi / 2) % np.pi - np.pi / 2)
+    assert np.all(dp < 1e-9)
+    # swap symmetry is bit-exact
+    s = merl_angles(w[1], w[0])
+    for a, b in zip((th, td, pd), s):
+        np.testing.assert_array_equal(a, b)

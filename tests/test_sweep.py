@@ -7,6 +7,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gonio import sweep
@@ -41,6 +42,13 @@ def counting_task(task: dict, out_dir: Path) -> dict:
     if n == 0 and mode == "die_once":
         os._exit(13)  # the worker process dies mid-task
     return {"value": float(task["seed"]) * 1.5, "square": float(task["seed"] ** 2)}
+
+
+def blas_task(task: dict, out_dir: Path) -> dict:
+    """A multi-threaded-BLAS-sized dot product: its rounding depends on the thread count."""
+    rng = np.random.default_rng(task["seed"])
+    x = rng.standard_normal(2_000_000)
+    return {"dot": float(x @ x), "norm": float(np.linalg.norm(rng.standard_normal((300, 300))))}
 
 
 def _runs(state: Path, tid: str) -> int:
@@ -149,14 +157,14 @@ def test_run_task_is_idempotent_and_atomic(tmp_path):
     s1 = sweep.run_task(task, tmp_path / "out")
     assert s1["skipped"] is False and s1["metrics"] == {"value": 0.0, "square": 0.0}
     final = tmp_path / "out" / "tasks" / tid
-    on_disk = json.loads((final / "summary.json").read_text())
+    on_disk = json.loads((final / sweep.SUMMARY).read_text())
     assert on_disk["complete"] is True and "skipped" not in on_disk
     assert (final / "result.txt").read_text() == "0\n"
     s2 = sweep.run_task(task, tmp_path / "out")
     assert s2["skipped"] is True and s2["metrics"] == s1["metrics"]
     assert _runs(state, tid) == 1
     # a half-written result (no complete summary) is not trusted: the task runs again
-    (final / "summary.json").write_text('{"complete": false}')
+    (final / sweep.SUMMARY).write_text('{"complete": false}')
     s3 = sweep.run_task(task, tmp_path / "out")
     assert s3["skipped"] is False and _runs(state, tid) == 2
     assert sweep.read_summary(final, task)["metrics"] == s1["metrics"]
@@ -314,3 +322,25 @@ def test_dask_recovers_from_a_killed_worker(tmp_path, dask_client):
         (state2 / f"{sweep.task_id(t)}.run-earlier").touch()
     rows_in = sweep.run_sweep(spec2, tmp_path / "in").rows
     assert [r["value"] for r in rows_in] == [r["value"] for r in res.rows]
+
+
+def test_single_thread_blas_guard_restores():
+    with sweep._SingleThreadBLAS() as guard:
+        inside = [get() for get, _ in guard._openblas()]
+    after = [get() for get, _ in sweep._SingleThreadBLAS._openblas()]
+    assert all(n == 1 for n in inside)
+    assert len(after) == len(inside)
+
+
+def test_dask_tables_identical_for_blas_heavy_tasks(tmp_path, dask_client):
+    # Dask workers run BLAS on one thread; run_task does the same everywhere, so the
+    # rounding of large reductions matches bit for bit
+    spec = sweep.spec_from_dict({"task": "blas", "materials": ["m"], "seeds": 2})
+    a = sweep.run_sweep(spec, tmp_path / "a", plot=False)
+    b = sweep.run_sweep(
+        spec, tmp_path / "b", executor="dask", client=dask_client, plot=False, fn=blas_task
+    )
+    assert a.rows == b.rows
+
+
+sweep.register_task("blas", blas_task)

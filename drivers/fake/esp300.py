@@ -447,6 +447,7 @@ class FakeESP300Server:
     def _open_pty(self) -> None:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo or CR/LF mangling before the client configures it
+        os.set_blocking(self._master, False)  # nobody reading: replies are lost, not blocking
         self.port = os.ttyname(self._slave)
         if self.link:
             tmp = f"{self.link}.tmp{os.getpid()}"
@@ -477,7 +478,7 @@ class FakeESP300Server:
     def _send(self, channel: str, data: bytes) -> None:
         try:
             if channel == "pty" and self._master >= 0:
-                os.write(self._master, data)
+                os.write(self._master, data)  # a full buffer raises BlockingIOError: dropped
             elif channel == "tcp" and self._client is not None:
                 self._client.sendall(data)
         except OSError:

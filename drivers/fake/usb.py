@@ -193,8 +193,7 @@ class FakeUsbBackend(usb.backend.IBackend):
 
     def reset_device(self, dev_handle: _Handle) -> None:
         d = self._live(dev_handle)
-        d.configuration = 0
-        d._reset_queues()
+        d._reset_queues()  # the configuration survives a port reset (the host restores it)
         d.on_reset()
         time.sleep(0.001)
 

@@ -103,7 +103,7 @@ class FakeUsbDevice(abc.ABC):
         self.bus = bus
         self.address = next(_addresses)
         self.generation = 0
-        self.configuration = 0
+        self.configuration = 1  # the host configures a device as soon as it is enumerated
         self.present = True
         self._back_at = 0.0
         self._cond = threading.Condition()
@@ -121,7 +121,7 @@ class FakeUsbDevice(abc.ABC):
             self.present = True
             self.address = next(_addresses)  # re-enumerated at a new address
             self.generation += 1
-            self.configuration = 0
+            self.configuration = 1
             self._reset_queues()
             self.on_reset()
 

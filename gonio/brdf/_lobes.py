@@ -174,7 +174,8 @@ def _frame(axis: NDArray) -> tuple[NDArray, NDArray]:
     """Unit vectors ``ex, ey`` completing ``axis``; ``ex`` lies in the plane of axis and z.
 
     ``ex`` is chosen so that ``ex_z = sin θ'`` (pointing up the normal), hence
-    ``v_z = cos α cos θ' + sin α sin θ' cos φ`` for ``v = sin α (cos φ ex + sin φ ey) + cos α axis``.
+    ``v_z = cos α cos θ' + sin α sin θ' cos φ`` for
+    ``v = sin α (cos φ ex + sin φ ey) + cos α axis``.
     """
     z = np.array([0.0, 0.0, 1.0])
     perp = z - axis[2] * axis
@@ -245,7 +246,11 @@ def half_vector_albedo(
     phi = np.concatenate([phi, -phi], axis=1) + phi_i
     wphi = np.concatenate([wphi, wphi], axis=1)
     h = np.stack(
-        [sd[:, None] * np.cos(phi), sd[:, None] * np.sin(phi), np.broadcast_to(cd[:, None], phi.shape)],
+        [
+            sd[:, None] * np.cos(phi),
+            sd[:, None] * np.sin(phi),
+            np.broadcast_to(cd[:, None], phi.shape),
+        ],
         axis=-1,
     )
     hw = h @ wi

@@ -270,7 +270,9 @@ def _check_lobes(lobes: Any) -> tuple[tuple[float, float, float, float, float], 
         try:
             vals = np.asarray(lobe, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"{where} must be a tuple of numbers (c_x, c_y, c_z, n[, p])") from None
+            raise ValueError(
+                f"{where} must be a tuple of numbers (c_x, c_y, c_z, n[, p])"
+            ) from None
         if vals.ndim != 1 or vals.size not in (4, 5):
             raise ValueError(f"{where} must have 4 or 5 entries (c_x, c_y, c_z, n[, p])")
         if not np.isfinite(vals).all():

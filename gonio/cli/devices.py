@@ -39,6 +39,7 @@ def add_arguments(parser) -> None:
 
 
 def _serve(args) -> int:
+    import signal
     import threading
 
     from gonio.drivers.fake.esp300 import FakeESP300Server
@@ -103,11 +104,15 @@ def _serve(args) -> int:
             f"time x{args.time_scale:g}; Ctrl-C to stop",
             flush=True,
         )
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        threading.Event().wait()
+        while not stop.wait(0.5):  # Ctrl-C raises KeyboardInterrupt here; SIGTERM sets stop
+            pass
     except KeyboardInterrupt:
         pass
     finally:
+        signal.signal(signal.SIGTERM, previous)
         server.stop()
         remote.close()
     return 0

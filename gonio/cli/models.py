@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from gonio.cli._common import add_json_option, format_table, write_json
 
 COMMAND = "models"
@@ -11,6 +13,11 @@ HELP = "list the registered BRDF models, their parameters (bounds, defaults) and
 def add_arguments(parser) -> None:
     parser.add_argument("name", nargs="?", help="show one model in detail")
     add_json_option(parser)
+
+
+def _finite(x: float) -> float | None:
+    """JSON has no infinity: an unbounded side is written as null."""
+    return x if math.isfinite(x) else None
 
 
 def run(args) -> int:
@@ -24,8 +31,8 @@ def run(args) -> int:
         params = {
             k: {
                 "default": p.default,
-                "lower": p.lower,
-                "upper": p.upper,
+                "lower": _finite(p.lower),
+                "upper": _finite(p.upper),
                 "unit": p.unit,
                 "doc": p.doc,
                 "kind": p.kind,

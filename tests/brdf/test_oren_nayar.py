@@ -422,3 +422,17 @@ def test_presets_load():
     assert m.params["rho"] == 0.9
     body = materials.get("foam") + materials.get("foam_surface")
     assert float(body([0, 0, 1.0], [0, 0, 1.0])) > 0
+
+
+def test_numeric_kernel_equals_numpy_path():
+    rng = np.random.default_rng(11)
+    th = np.array([0.0, 1e-12, 0.5, 1.2, 1.5, np.pi / 2 - 1e-9, np.pi / 2 - 1e-12])
+    a, b, c = np.meshgrid(th, th, np.radians([0, 60, 90, 120, 180]), indexing="ij")
+    wi = np.concatenate([_dirs(3000, rng), to_vector(a.ravel(), 0.0)])
+    wo = np.concatenate([_dirs(3000, rng), to_vector(b.ravel(), c.ravel())])
+    for s in (1e-4, 0.3, 1.5):
+        m = brdf.create("oren_nayar_numeric", rho=0.7, sigma=s)
+        fast = m(wi, wo)
+        m.use_kernel = False
+        ref = m(wi, wo)
+        np.testing.assert_allclose(fast, ref, rtol=1e-13, atol=0)

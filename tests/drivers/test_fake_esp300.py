@@ -178,11 +178,11 @@ def test_corrupted_command_is_reported_by_the_controller(server):
 
 
 def test_delayed_reply_beyond_timeout_is_not_taken_for_the_next_answer(server):
-    esp = ESP300.open(server.port, axes=AXES, timeout=0.15)
+    esp = ESP300.open(server.port, axes=AXES, timeout=0.3)
     esp.axis("a").motor_on()
     esp.axis("a").move_to(5)
     esp.axis("a").wait(5)
-    server.faults.reply_delay, server.faults.delayed_replies = 0.22, 1
+    server.faults.reply_delay, server.faults.delayed_replies = 0.45, 1
     assert esp.axis("a").position() == pytest.approx(5.0)
     assert esp.axis("a").is_moving() is False  # a stale "5.00000" would fail to parse here
     esp.close()
@@ -202,7 +202,7 @@ def test_motor_fault_during_move_then_recovery(server):
     esp = ESP300.open(server.port, axes=AXES)
     a = esp.axis("a")
     a.motor_on()
-    a.velocity = 5
+    a.velocity = 1  # 90 s simulated = 0.45 s real: the fault lands mid-move
     a.move_to(90)
     time.sleep(0.02)
     server.firmware.inject_motor_fault(1)

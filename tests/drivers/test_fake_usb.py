@@ -69,14 +69,31 @@ def test_ptp_interface_is_still_image_class(bus):
     assert types == {0x81: 2, 0x02: 2, 0x83: 3}
 
 
-def test_endpoints_need_configuration(bus):
+def test_configured_once_enumerated_and_unconfigurable(bus):
     name, _, _ = bus
     d = usb.core.find(idVendor=0x2457, backend=backend(name))
-    # pyusb asks the backend for the active configuration first: 0 means "not configured"
+    assert d.get_active_configuration().bConfigurationValue == 1
+    assert d.write(0x01, b"\x01") == 1
+    d.set_configuration(0)  # unconfigured: the endpoints are gone
     with pytest.raises(usb.core.USBError):
         d.write(0x01, b"\x01")
-    d.set_configuration()
+    d.set_configuration(1)
+    d.reset()
     assert d.write(0x01, b"\x01") == 1
+
+
+def test_transfer_of_whole_packets_ends_with_zero_length_packet(bus):
+    name, _, fakes = bus
+    cam = fakes["ptp"]
+    d = usb.core.find(idVendor=0x1209, backend=backend(name))
+    cam.queue_in(0x81, bytes(range(256)) * 4)  # 1024 bytes = 2 full packets, then a ZLP
+    cam.queue_in(0x81, b"next")
+    assert len(d.read(0x81, 4096, timeout=200)) == 1024  # the ZLP ends the transfer
+    assert bytes(d.read(0x81, 4096, timeout=200)) == b"next"
+    cam.queue_in(0x81, bytes(100))
+    with pytest.raises(usb.core.USBError) as ei:  # a packet bigger than the buffer
+        d.read(0x81, 64, timeout=200)
+    assert ei.value.errno == errno.EOVERFLOW
 
 
 def test_interrupt_read_without_event_times_out_after_callers_timeout(bus):
@@ -290,3 +307,24 @@ def test_ptp_corrupted_container_and_timeouts_recovered(bus):
     fakes["ptp"].faults.usb_timeouts = 0
     assert cam.object_handles() == []
     cam.close()
+
+
+def test_fake_spectrometer_shows_the_cornell_simulator_spectrum():
+    """With the Cornell simulator wired in, the USB2000+ returns its counts for the stages."""
+    pytest.importorskip("gonio.simulator.cornell")
+    b = Bench.for_instrument("cornell", time_scale=1000.0, noise=False)
+    name = fakeusb.install(b)
+    try:
+        s = USB2000Plus.open(name)
+        s.integration_time = 0.1
+        at_zero = s.raw_spectrum()
+        np.testing.assert_array_equal(at_zero, b.render_spectrum(0.1))
+        arm = b.stage("arm")
+        arm.motor_on = True
+        arm.move_to(40.0, b.now() - 100.0)
+        at_40 = s.raw_spectrum()
+        np.testing.assert_array_equal(at_40, b.render_spectrum(0.1))
+        assert at_40.astype(float).sum() != at_zero.astype(float).sum()
+        s.close()
+    finally:
+        fakeusb.uninstall(name)

@@ -4,10 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from gonio import brdf, materials
-from gonio.geometry import to_vector
-from gonio.samples import BRDFSamples
 from gonio.simulator.cornell import (
     BANDS_NM,
     CornellConfig,
@@ -18,6 +14,10 @@ from gonio.simulator.cornell import (
     simulate_campaign,
 )
 from gonio.simulator.cornell_plans import hemispherical_plan, incidence_plane_plan
+
+from gonio import brdf, materials
+from gonio.geometry import to_vector
+from gonio.samples import BRDFSamples
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +40,13 @@ def test_noise_free_equals_cone_averaged_model(name, small_plan):
     inst = CornellInstrument(name, noise=False)
     conv = inst.expected_brdf(small_plan.angles).ravel()
     big = conv > 1e-6 * conv.max()
-    assert np.max(np.abs(s.value - conv)[big] / conv[big]) < 1e-9
+    # exact up to rounding in the bias/dark subtraction (measured max 1.8e-9)
+    assert np.max(np.abs(s.value - conv)[big] / conv[big]) < 1e-7
     # and the plain model at the reached directions: the cone average changes typical values
     # by far less than 0.5 % (largest differences: steep lobe flanks, see accuracy_check)
-    plain = materials.get(name)(s.wi, s.wo)[np.arange(len(s)), (s.wavelength_nm - 400) // 10 % 31]
+    plain = materials.get(name)(s.wi, s.wo)[
+        np.arange(len(s)), ((s.wavelength_nm - 400) // 10).astype(int)
+    ]
     ok = plain > 1e-3 * plain.max()
     assert np.median(np.abs(s.value - plain)[ok] / plain[ok]) < 5e-3
 
@@ -73,12 +76,14 @@ def test_mirror_part_is_a_peak_of_the_source_width():
     peak = f - cont
     # at the centre the detector cone lies inside the source image: rho / (Omega_s cos θi)
     np.testing.assert_allclose(peak[0], rho / (cfg.source_solid_angle * np.cos(ti)), rtol=1e-6)
-    # cone half-angles 0.72 and 0.32 deg: partial overlap at 0.6 deg, nothing beyond 1.04 deg
-    assert 0 < peak[2, 15] < peak[1, 15] <= peak[0, 15]
+    # cone half-angles 0.72 and 0.32 deg: full overlap up to 0.4 deg, partial at 0.6 deg,
+    # nothing beyond 1.04 deg
+    assert peak[1, 15] == pytest.approx(peak[0, 15], rel=1e-12)
+    assert 0 < peak[2, 15] < 0.9 * peak[1, 15]
     assert np.all(peak[3:] == 0.0)
     # eq. 16's top hat with d_omega_i = Omega_s gives the same peak
     box = brdf.create("li_torrance", **{**m.params, "d_omega_i": cfg.source_solid_angle})
-    np.testing.assert_allclose(box(r.wi[0], r.wo[0]), f[0], rtol=0.01)
+    np.testing.assert_allclose(box(r.wi[0], r.wo[0]) - m(r.wi[0], r.wo[0]), peak[0], rtol=1e-6)
 
 
 def test_skipping_the_convolution_keeps_values(small_plan):
@@ -113,7 +118,7 @@ def test_noise_is_seeded_keyed_and_consistent_with_sigma(small_plan):
     assert not np.array_equal(a.value, c.value)
     conv = CornellInstrument("laser_paper", noise=False).expected_brdf(small_plan.angles).ravel()
     z = (a.value - conv) / a.sigma
-    assert abs(z.mean()) < 0.2 and 0.8 < z.std() < 1.3
+    assert abs(z.mean()) < 0.15 and 0.9 < z.std() < 1.15  # measured 1.02
     # the same read twice differs (occurrence counter); two instruments agree read by read
     i1, i2 = CornellInstrument("laser_paper", rng=3), CornellInstrument("laser_paper", rng=3)
     pos = {"arm": 60.0, "turntable": 30.0, "tilt": 5.0, "polarizer": 0.0}
@@ -137,6 +142,9 @@ def test_raw_spectrum_shape_and_bench_renderer():
     dark = inst.spectrum_render({**pos, "shutter": 0.0}, 1.0)
     lit = inst.spectrum_render(pos, 1.0)
     assert lit.mean() > dark.mean() + 100
+    blocked = inst.expected_counts({**pos, "arm": 3.0}, 1.0)
+    trap = inst.expected_counts({**pos, "target": 2.0}, 1.0)
+    np.testing.assert_allclose(blocked, trap)  # the arm hides the sample: stray light only
     # red sample under a halogen lamp: more counts at 650 than at 450 nm
     assert lit[np.argmin(abs(wl - 650))] > lit[np.argmin(abs(wl - 450))]
     with pytest.raises(ValueError, match="positions lacks stage"):

@@ -4,13 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from gonio.geometry import (
-    sample_uniform_hemisphere,
-    to_spherical,
-    to_vector,
-    uniform_hemisphere_grid,
-)
 from gonio.simulator.cornell_kinematics import Kinematics, forward, inverse
 from gonio.simulator.cornell_plans import (
     Timing,
@@ -19,6 +12,13 @@ from gonio.simulator.cornell_plans import (
     incidence_plane_plan,
     order_plan,
     read_plan_csv,
+)
+
+from gonio.geometry import (
+    sample_uniform_hemisphere,
+    to_spherical,
+    to_vector,
+    uniform_hemisphere_grid,
 )
 
 
@@ -137,7 +137,9 @@ def test_ordering_and_run_time():
     t_raw = estimate_run_time(p)
     t_ord = estimate_run_time(o)
     assert t_ord["move_s"] < 0.8 * t_raw["move_s"]
-    assert sorted(map(tuple, o.angles.round(12))) == sorted(map(tuple, p.measurable().angles.round(12)))
+    assert sorted(map(tuple, o.angles.round(12))) == sorted(
+        map(tuple, p.measurable().angles.round(12))
+    )
     assert t_ord["n_measurements"] == p.reachable.sum()
     assert t_ord["total_s"] == pytest.approx(
         t_ord["move_s"] + t_ord["integration_s"] + t_ord["overhead_s"]
@@ -154,7 +156,7 @@ def test_user_plan_from_csv(tmp_path):
     f.write_text("# my plan\ntheta_i,phi_i,theta_o,phi_o\n30,0,30,180\n30,0,50,90\n60,0,10,180\n")
     p = read_plan_csv(f)
     assert len(p) == 3 and p.reachable.all() and p.group.tolist() == [0, 0, 1]
-    wi, wo = forward(p.angles)
+    _, wo = forward(p.angles)
     np.testing.assert_allclose(np.degrees(to_spherical(wo)[0]), [30, 50, 10], atol=1e-9)
     bad = tmp_path / "bad.csv"
     bad.write_text("theta_i,phi_i,theta_o\n1,2,3\n")

@@ -309,3 +309,89 @@ def test_bad_instrument_input():
         LBLInstrument(half_separation=0.01, sample_radius=0.03)
     with pytest.raises(ValueError, match="rho_standard"):
         LBLInstrument(rho_standard=1.2)
+
+
+def test_tabulated_grey_and_spectral(inst):
+    from gonio.merl import tabulate
+
+    grey = brdf.create("tabulated", data=tabulate("lambert", rho=0.5))
+    img, meta = inst.capture(grey, TH, noise=False)
+    assert meta["brdf"]["params"]["data"]["ndarray_shape"] == [90, 90, 180]
+    json.dumps(meta)
+    lam, _ = inst.capture(brdf.create("lambert", rho=0.5), TH, noise=False)
+    # MERL's nearest-cell lookup reads 0 within a few tenths of a degree of grazing
+    g = inst.geometry
+    keep = np.zeros(img.size, bool)
+    keep[g.idx[g.wz > math.cos(math.radians(85))]] = True
+    keep = keep.reshape(img.shape)
+    assert np.abs(img.astype(int) - lam)[keep].max() <= 1
+    with pytest.raises(ValueError, match="pass it as sample"):
+        reproduce(meta)
+    assert np.array_equal(reproduce(meta, grey)[0], img)
+    # three bands scaled 1 : 2 : 3 -> per-filter signals in that ratio
+    t = tabulate("lambert", rho=0.2)
+    spec = brdf.create(
+        "tabulated", data=np.stack([t, 2 * t, 3 * t]), wavelengths_nm=[450, 550, 650]
+    )
+    e = [inst.electrons(spec, TH, band=b) for b in range(3)]
+    bg = inst.electrons(None, TH)
+    lit = e[0] > bg
+    assert np.allclose((e[1] - bg)[lit], 2 * (e[0] - bg)[lit])
+    assert np.allclose((e[2] - bg)[lit], 3 * (e[0] - bg)[lit])
+    shots = inst.capture_bands(spec, TH, 0.0, (452.0, 550.0, 648.0), noise=False)
+    assert [m["band"] for _, m in shots] == [0, 1, 2]
+    with pytest.raises(ValueError, match="within 5 nm"):
+        inst.capture_bands(spec, TH, 0.0, (500.0,))
+
+
+def test_camera_render_negative_arm_angle(inst):
+    render = inst.camera_render("rolled_brass", noise=False)
+    img, meta = render({"source": -30.0, "sample": 0.0}, 0.01, 4.0)
+    assert meta["theta_i"] == pytest.approx(TH)
+    assert meta["phi_i"] == pytest.approx(math.pi)
+    assert np.array_equal(img, inst.capture("rolled_brass", TH, math.pi, noise=False)[0])
+    with pytest.raises(ValueError, match="theta_i"):
+        render({"source": 95.0, "sample": 0.0}, 0.01, 4.0)
+
+
+def test_eq2_hemisphere_with_exact_trace_and_eq3_error(hemi):
+    """Hemisphere: eq. 2 gives f_r at the exactly traced angles; eq. 3's angles are off by
+    at most (D/R)² rad."""
+    from gonio.simulator import traced_reflection_angles
+
+    model = materials.get("lightly_brushed_aluminum")
+    ph = math.radians(-50)
+    v, vs, vb = (hemi.electrons(s, TH, ph, f_number=22.0) for s in (model, STANDARD, None))
+    lit = vs > vb
+    rho = (v - vb)[lit] / (vs - vb)[lit] * hemi.rho_standard / math.pi
+    d = hemi.lens.unproject(hemi.lens.pixel_grid()[lit])
+    tc = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
+    pc = np.arctan2(d[:, 1], d[:, 0])
+    R, D = hemi.mirror.radius, hemi.mirror.half_separation
+    tr, pr, _ = traced_reflection_angles(tc, pc, R, D, "hemisphere")
+    te, pe = eq3_reflection_angles(tc, pc, R, D)
+
+    def vec(t, p):
+        p = p - (hemi.source.arm_azimuth - ph)
+        return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1)
+
+    wi = np.array([math.sin(TH) * math.cos(ph), math.sin(TH) * math.sin(ph), math.cos(TH)])
+    assert np.allclose(rho, model(wi, vec(tr, pr)), rtol=1e-10)
+    err = np.arccos(np.clip(np.sum(vec(tr, pr) * vec(te, pe), -1), -1, 1))
+    assert err.max() <= (D / R) ** 2 * 1.01
+    assert not np.allclose(rho, model(wi, vec(te, pe)), rtol=1e-6)
+
+
+def test_video_response_curve():
+    from gonio.simulator import Sensor
+
+    inst = LBLInstrument(width=80, height=60, sensor=Sensor(response_gamma=0.45, adc_bits=8))
+    img, meta = inst.capture("rolled_brass", TH, noise=False)
+    e = inst.electrons("rolled_brass", TH)
+    assert np.array_equal(img, inst.sensor.digitise(e))
+    assert meta["sensor"]["response_gamma"] == 0.45 and img.max() <= 255
+    lin = LBLInstrument(width=80, height=60, sensor=Sensor(adc_bits=8))
+    a = lin.capture("rolled_brass", TH, noise=False)[0].astype(float) - 64
+    b = img.astype(float) - 64
+    mid = (a > 5) & (a < 150)
+    assert np.all(b[mid] >= a[mid])  # gamma < 1 lifts the mid-tones
