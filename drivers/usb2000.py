@@ -54,6 +54,9 @@ class USB2000Plus:
         Extra attempts (after a timeout, a stall, a bad sync byte or a reconnect).
     initialize : bool
         Send 0x01 on construction.
+    n_pixels : int or None
+        Pixels per spectrum: 2048 on a USB2000+ (default). ``None`` asks the device (status
+        query 0xFE on construction), for a detector of another size behind the same protocol.
     """
 
     device = DEVICE
@@ -65,6 +68,7 @@ class USB2000Plus:
         timeout: float = 1.0,
         retries: int = 2,
         initialize: bool = True,
+        n_pixels: int | None = N_PIXELS,
     ) -> None:
         self.transport = transport
         self.timeout = float(timeout)
@@ -75,6 +79,11 @@ class USB2000Plus:
         self._wavelengths: np.ndarray | None = None
         if initialize:
             self.initialize()
+        if n_pixels is None:
+            n_pixels = self.status()["pixels"]
+        if int(n_pixels) != n_pixels or not 1 <= n_pixels <= 8192:
+            raise ValueError(f"n_pixels={n_pixels!r}: expected an integer 1..8192 or None")
+        self.n_pixels = int(n_pixels)
 
     @classmethod
     def open(cls, backend: Any = None, **kwargs: Any) -> USB2000Plus:
@@ -188,10 +197,10 @@ class USB2000Plus:
         raise DeviceError(DEVICE, f"0x05 query slot {slot}", text, "slot is not a number")
 
     def wavelengths(self) -> np.ndarray:
-        """Wavelength of each of the 2048 pixels (nm), from the EEPROM calibration."""
+        """Wavelength of each pixel (nm), from the EEPROM calibration."""
         if self._wavelengths is None:
             c = self.wavelength_coefficients()
-            p = np.arange(N_PIXELS, dtype=np.float64)
+            p = np.arange(self.n_pixels, dtype=np.float64)
             self._wavelengths = c[0] + c[1] * p + c[2] * p**2 + c[3] * p**3
         return self._wavelengths.copy()
 
@@ -232,27 +241,29 @@ class USB2000Plus:
         return self._retry("0x6B read register 0x04", once)
 
     def raw_spectrum(self) -> np.ndarray:
-        """0x09: one spectrum as raw counts (uint16, 2048 pixels); checks the sync byte."""
+        """0x09: one spectrum as raw counts (uint16, ``n_pixels``); checks the sync byte."""
         tmo = self._tmo_ms + int(self._itime_us / 1000)
+
+        n = self.n_pixels
 
         def once() -> np.ndarray:
             self.transport.write(EP_OUT, b"\x09", self._tmo_ms)
             data = b""
             deadline = time.monotonic() + tmo / 1000
-            while len(data) < 2 * N_PIXELS + 1:
+            while len(data) < 2 * n + 1:
                 left = int(max(1, (deadline - time.monotonic()) * 1000))
-                chunk = self.transport.read(EP_IN_SPECTRUM, 2 * N_PIXELS + 1 - len(data), left)
+                chunk = self.transport.read(EP_IN_SPECTRUM, 2 * n + 1 - len(data), left)
                 if not chunk:
                     break
                 data += chunk
                 if len(chunk) % 512:
                     break  # short packet: end of the transfer
-            if len(data) != 2 * N_PIXELS + 1 or data[-1] != SYNC:
+            if len(data) != 2 * n + 1 or data[-1] != SYNC:
                 self._drain()
                 raise _BadReply(
                     data[-8:],
                     f"{len(data)} bytes, last {data[-1:]!r}: expected "
-                    f"{2 * N_PIXELS + 1} bytes ending with sync byte 0x69",
+                    f"{2 * n + 1} bytes ending with sync byte 0x69",
                 )
             return np.frombuffer(data[:-1], dtype="<u2").astype(np.uint16)
 

@@ -86,13 +86,15 @@ def plot_incidence_plane(
     path: str | os.PathLike,
     *,
     n_angles: int = 6,
-    tol: float = np.radians(5.0),
+    tol: float = np.radians(2.0),
+    max_points: int = 300,
     title: str = "",
 ) -> Path:
     """Ward Fig. 6: BRDF in the plane of incidence at up to six θi, log axis.
 
     ``model`` (a BRDF or ``None``) is drawn as continuous curves; measured points are the
-    samples within ``tol`` of the plane. One panel per distinct sample azimuth φi.
+    samples within ``tol`` of the plane (at most ``max_points`` per θi, a seeded subset).
+    One panel per distinct sample azimuth φi.
     """
     _check(samples)
     phis = pick_angles(samples.phi_i, 4)
@@ -107,16 +109,18 @@ def plot_incidence_plane(
         angles = pick_angles(samples.theta_i[rows], n_angles)
         for j, ti in enumerate(angles):
             c = cmap(j / max(len(angles) - 1, 1))
-            sel = rows & inplane & np.isclose(samples.theta_i, ti, atol=1e-6)
+            sel = np.flatnonzero(rows & inplane & np.isclose(samples.theta_i, ti, atol=1e-6))
+            if len(sel) > max_points:  # a fixed-seed subset keeps the curves visible
+                sel = np.sort(np.random.default_rng(j).choice(sel, max_points, replace=False))
             sub = samples.subset(sel)
             pos = sub.value > 0
             ax.plot(
                 np.degrees(_signed_theta_o(sub))[pos],
                 sub.value[pos],
                 "o",
-                ms=3,
+                ms=2.5,
                 color=c,
-                alpha=0.7,
+                alpha=0.6,
                 label=f"θi = {np.degrees(ti):.0f}°",
             )
             if model is not None:
@@ -144,7 +148,7 @@ def plot_hemisphere(
     path: str | os.PathLike,
     *,
     max_panels: int = 24,
-    bins: int = 48,
+    bins: int = 36,
     title: str = "",
 ) -> Path:
     """One map per (θi, φi) of the reduced samples over the outgoing hemisphere.

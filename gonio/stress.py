@@ -133,7 +133,7 @@ SIZES: dict[str, StressConfig] = {
         analytic_albedo=False,
     ),
     "default": StressConfig("default", model_seconds=2.0),
-    "full": StressConfig("full", n_random=3000, n_random_sets=12, max_sets=60, model_seconds=60.0),
+    "full": StressConfig("full", n_random=4000, n_random_sets=12, max_sets=80, model_seconds=60.0),
 }
 
 

@@ -42,7 +42,8 @@ __all__ = [
     "default_camera_render",
     "CORNELL_PIXELS",
     "CORNELL_TARGET_MM",
-    "CORNELL_WHEEL_DEG",
+    "CORNELL_FILTER_DEG",
+    "CORNELL_SHUTTER_DEG",
     "LBL_CHANGER_MM",
     "cornell_positions",
     "cornell_spectrum_render",
@@ -355,7 +356,8 @@ _INSTRUMENT_STAGES: dict[str, tuple[tuple[str, dict], ...]] = {
     # sample tilt (speeds and accelerations of gonio.simulator.cornell.BENCH_STAGES, the ones
     # its run-time estimate assumes), then the accessories on a second controller: the
     # polariser (0° = s, 90° = p), the target slide (:data:`CORNELL_TARGET_MM`) and the
-    # filter wheel (:data:`CORNELL_WHEEL_DEG`: open, ND filter, blank = shutter closed).
+    # ND filter wheel (:data:`CORNELL_FILTER_DEG`), and on a third the rotary shutter
+    # (:data:`CORNELL_SHUTTER_DEG`).
     "cornell": (
         ("arm", {"lower": -180.0, "upper": 180.0, "speed": 5.0, "acceleration": 10.0}),
         ("turntable", {"lower": -360.0, "upper": 360.0, "speed": 10.0, "acceleration": 20.0}),
@@ -365,7 +367,8 @@ _INSTRUMENT_STAGES: dict[str, tuple[tuple[str, dict], ...]] = {
             "target",
             {"units": "mm", "lower": -1.0, "upper": 80.0, "speed": 50.0, "acceleration": 200.0},
         ),
-        ("wheel", {"lower": -10.0, "upper": 370.0, "speed": 120.0, "acceleration": 480.0}),
+        ("filter", {"lower": -10.0, "upper": 370.0, "speed": 120.0, "acceleration": 480.0}),
+        ("shutter", {"lower": -10.0, "upper": 100.0, "speed": 900.0, "acceleration": 9000.0}),
     ),
 }
 
@@ -373,8 +376,10 @@ _INSTRUMENT_STAGES: dict[str, tuple[tuple[str, dict], ...]] = {
 LBL_CHANGER_MM = {"sample": 0.0, "standard": 25.0, "empty": 50.0}
 #: Cornell target slide stations (mm), in the order of ``gonio.simulator.cornell.TARGETS``.
 CORNELL_TARGET_MM = {"sample": 0.0, "standard": 25.0, "beam_trap": 50.0, "direct": 75.0}
-#: Cornell filter wheel stations (deg): open, ND filter in, blank (the shutter).
-CORNELL_WHEEL_DEG = {"open": 0.0, "nd": 60.0, "blank": 120.0}
+#: Cornell filter wheel stations (deg): open, ND filter in.
+CORNELL_FILTER_DEG = {"open": 0.0, "nd": 60.0}
+#: Cornell rotary shutter positions (deg).
+CORNELL_SHUTTER_DEG = {"open": 0.0, "closed": 90.0}
 #: Spectrometer pixels of the Cornell bench (its 1024-pixel spectroradiometer).
 CORNELL_PIXELS = 1024
 
@@ -392,8 +397,8 @@ def cornell_positions(positions: Mapping[str, float]) -> dict[str, float]:
 
     ``arm``, ``turntable``, ``tilt`` and ``polarizer`` pass through (degrees); the target
     slide becomes ``target`` (0 sample, 1 standard, 2 beam trap, 3 direct beam; between
-    stations the beam falls on the trap), the filter wheel ``shutter`` (0 on the blank or
-    between stations) and ``filter`` (1 with the ND filter in).
+    stations the beam falls on the trap), the filter wheel ``filter`` (1 with the ND filter
+    in) and the rotary shutter ``shutter`` (1 only when open, within 1°).
     """
     out = {k: float(positions[k]) for k in ("arm", "turntable", "tilt") if k in positions}
     if "polarizer" in positions:
@@ -402,10 +407,12 @@ def cornell_positions(positions: Mapping[str, float]) -> dict[str, float]:
         st = _station(positions["target"], CORNELL_TARGET_MM, 0.5)
         order = list(CORNELL_TARGET_MM)
         out["target"] = float(order.index(st) if st is not None else order.index("beam_trap"))
-    if "wheel" in positions:
-        st = _station(float(positions["wheel"]) % 360.0, CORNELL_WHEEL_DEG, 1.0)
-        out["shutter"] = 0.0 if st in (None, "blank") else 1.0
+    if "filter" in positions:
+        st = _station(float(positions["filter"]) % 360.0, CORNELL_FILTER_DEG, 1.0)
         out["filter"] = 1.0 if st == "nd" else 0.0
+    if "shutter" in positions:
+        st = _station(positions["shutter"], CORNELL_SHUTTER_DEG, 1.0)
+        out["shutter"] = 1.0 if st == "open" else 0.0
     return out
 
 
@@ -574,7 +581,9 @@ class Bench:
                 from gonio.simulator.cornell import CornellConfig
 
                 cfg = CornellConfig()
-                coeffs, n_pixels = tuple(cfg.wavelength_coeffs), int(cfg.n_pixels)
+                # as the EEPROM holds them (%.6e), so the driver's wavelengths are the bench's
+                coeffs = tuple(float(f"{c:.6e}") for c in cfg.wavelength_coeffs)
+                n_pixels = int(cfg.n_pixels)
             except ImportError:
                 pass
         if simulate:

@@ -4,8 +4,8 @@ Endpoints as on the real device (high-speed): EP1 OUT 0x01 (commands), EP1 IN 0x
 replies), EP2 OUT 0x02, EP2 IN 0x82 (spectra), EP6 IN 0x86; all bulk, 512-byte packets.
 Commands (first byte): 0x01 initialise, 0x02 integration time (u32 LE, µs), 0x03 strobe
 enable, 0x05 query information (EEPROM slot; reply 17 bytes ``05 slot data[15]`` on 0x81),
-0x06 write information, 0x09 request spectrum (2048 pixels as u16 LE = 8 packets of 512
-bytes on 0x82, then the one-byte sync packet 0x69), 0x0A trigger mode, 0x6A/0x6B write/read
+0x06 write information, 0x09 request spectrum (the bench's ``n_pixels`` — 2048 on a USB2000+ — as u16 LE in
+512-byte packets on 0x82, then the one-byte sync packet 0x69), 0x0A trigger mode, 0x6A/0x6B write/read
 FPGA register (``reg lo hi`` on 0x81), 0xFE query status (16 bytes on 0x81). Unknown commands
 are ignored, as the firmware does.
 
@@ -106,6 +106,11 @@ class FakeUSB2000Plus(FakeUsbDevice):
         # slot 17: bytes 4..5 hold the saturation level (u16 LE) read by seabreeze
         self.eeprom.setdefault(17, b"\x00\x00\x00\x00" + struct.pack("<H", 65535))
 
+    @property
+    def n_pixels(self) -> int:
+        """Pixels per spectrum: the bench's ``n_pixels`` (2048 unless the bench says)."""
+        return int(getattr(self.bench, "n_pixels", N_PIXELS))
+
     def _slot(self, n: int) -> bytes:
         data = self.eeprom.get(n, b"")[:15]
         return bytes([0x05, n % 0xFF]) + data + bytes(15 - len(data))
@@ -138,12 +143,12 @@ class FakeUSB2000Plus(FakeUsbDevice):
             acquiring = 1 if time.monotonic() < self._acq_until else 0
             status = struct.pack(
                 "<HLBBBBBBBBBB",
-                N_PIXELS,
+                self.n_pixels,
                 self.integration_us,
                 self.strobe & 1,
                 self.trigger_mode,
                 acquiring,
-                8,
+                (2 * self.n_pixels + 511) // 512,
                 0,
                 0,
                 0,
@@ -156,7 +161,7 @@ class FakeUSB2000Plus(FakeUsbDevice):
 
     def _request_spectrum(self) -> None:
         it_s = self.integration_us * 1e-6
-        counts = self.bench.render_spectrum(it_s, N_PIXELS)
+        counts = self.bench.render_spectrum(it_s, self.n_pixels)
         ready = time.monotonic() + self.bench.clock.real_seconds(it_s)
         self._acq_until = ready
         raw = counts.astype("<u2").tobytes()
@@ -166,4 +171,4 @@ class FakeUSB2000Plus(FakeUsbDevice):
 
     def spectrum_truth(self) -> np.ndarray:
         """The noise-free counts the bench would give now (for tests)."""
-        return self.bench.render_spectrum(self.integration_us * 1e-6, N_PIXELS)
+        return self.bench.render_spectrum(self.integration_us * 1e-6, self.n_pixels)

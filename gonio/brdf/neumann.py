@@ -121,6 +121,11 @@ class _PhongLobe(BRDF):
     """``rho_d/π + c · [cos α]₊ⁿ · F / max(cos θ_i, cos θ_o)^p`` with α about the mirror."""
 
     RETRO: ClassVar[bool] = False
+    KNOWN_ISSUES: ClassVar[tuple[str, ...]] = (
+        "albedo exceeds 1 slightly with the maximum c_n: by 0.0003 near 13 deg at n = 1 and "
+        "by 0.01 near 30 deg at n = 0.5, more as n -> 0 (001_84a7b2661ce0a5d4.txt §2.2: "
+        "eq. 6 is energy conserving only for the reciprocal Phong model, n >= 1)",
+    )
 
     # -- parameters the subclasses map onto the common form
     def _lobe_params(self) -> tuple[float, float, float, float]:
@@ -262,6 +267,7 @@ class Phong(_PhongLobe):
     """
 
     name: ClassVar[str] = "phong"
+    KNOWN_ISSUES: ClassVar[tuple[str, ...]] = ()  # eq. 6 bound holds for eq. 5 itself
     PARAMS = (_P_N, _P_CN, _P_RHOD)
     REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 5-6 (reciprocal Phong)"
     SUMMARY = "reciprocal Phong lobe c_n cos^n(alpha) (+ Lambert)"
@@ -816,7 +822,8 @@ class CookTorrance(_HalfLobe):
         cc = np.where(up, ci * co, 1.0)
         spec = d * g / cc
         if self._f0 is not None:
-            spec = spec * (self._f0 + (1.0 - self._f0) * (1.0 - vh) ** 5)
+            # clip: non-unit (e.g. float32-rounded) inputs can give v·h a hair above 1
+            spec = spec * (self._f0 + (1.0 - self._f0) * np.clip(1.0 - vh, 0.0, 1.0) ** 5)
         return np.where(up, self._kd + spec, 0.0)
 
 

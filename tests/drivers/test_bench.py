@@ -129,5 +129,6 @@ def test_default_renders_respond_to_exposure_and_position():
     src.motor_on = True
     src.move_to(60.0, b.now() - 1000)
     assert b.render_spectrum(0.1).astype(float).sum() < s0
-    w = b.wavelengths()
-    assert w[0] == pytest.approx(339.7) and np.all(np.diff(w) > 0)
+    w = b.wavelengths()  # the Cornell spectroradiometer: 1024 pixels from 385 nm
+    assert w.shape == (1024,) and w[0] == pytest.approx(385.0) and np.all(np.diff(w) > 0)
+    assert Bench().wavelengths()[0] == pytest.approx(339.7)  # the USB2000+ default

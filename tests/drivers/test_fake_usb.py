@@ -315,7 +315,9 @@ def test_fake_spectrometer_shows_the_cornell_simulator_spectrum():
     b = Bench.for_instrument("cornell", time_scale=1000.0, noise=False)
     name = fakeusb.install(b)
     try:
-        s = USB2000Plus.open(name)
+        s = USB2000Plus.open(name, n_pixels=None)
+        assert s.n_pixels == b.n_pixels == 1024  # learnt from the status query
+        np.testing.assert_allclose(s.wavelengths(), b.wavelengths(), rtol=1e-6)
         s.integration_time = 0.1
         at_zero = s.raw_spectrum()
         np.testing.assert_array_equal(at_zero, b.render_spectrum(0.1))

@@ -1,0 +1,574 @@
+"""Cornell campaigns: plan → measurements → BRDFSamples → ``li_torrance`` fit → results.
+
+:func:`run_cornell_campaign` measures a material on the simulated Cornell three-axis
+gonioreflectometer (Li & Torrance 2005, 000_f6f2403beaa91ee8.txt §5.1), either in-process
+(:func:`gonio.simulator.cornell.simulate_campaign`) or through the device drivers against
+the fake devices (:mod:`gonio.hardware`: ESP300s on pseudo-terminals, the USB2000+ on the
+fake pyusb backend), and fits ``li_torrance`` (eq. 3-14) with shared σ, τ and per-band
+coefficients k. Both paths measure the same ordered plan with the motor angles rounded to
+the controller's resolution (``resolution_deg``), so that for the same seed they give the
+same samples.
+
+Identifiability (verified here, :func:`identifiability_scan`): in eq. 3-14 every term but
+the mirror part depends on σ and τ only through σ/τ (the slope m = σ/τ in D, eq. 5, the
+shadowing S, eq. 6-8, and the forward-scattering term, eq. 13); only the coherent mirror
+part exp(−g), g = (2πσ/λ)²(cos θi + cos θr)² (eq. 4), sees σ alone. So for samples without a
+mirror part (aluminized ground glass, garnet red paint, laser paper) σ and τ cannot be
+recovered separately from any BRDF data: ``fit_mode="auto"`` then holds σ at the table value
+and fits τ (equivalently, the ratio); for aluminized non-glare glass (mirror part) both are
+fitted.
+
+Results directory (``out``)::
+
+    plan.json        the resolved campaign settings
+    checkpoint.npz   completed measurements (through drivers; resume with resume=True)
+    reference.npz    the reference measurement (through drivers)
+    samples.csv      BRDF samples (31 rows per geometry, wavelength_nm column)
+    fit.json         the fit (FitResult.to_dict())
+    summary.json     material, model, truth, fit, stderr, relative_error, rms, n_samples,
+                     converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma, ...)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.samples import BRDFSamples, atomic_write_bytes
+
+__all__ = [
+    "build_plan",
+    "fit_li_torrance",
+    "identifiability_scan",
+    "main",
+    "run_cornell_campaign",
+]
+
+PLANS = ("incidence", "incidence_plane", "hemispherical")
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    from gonio.cli._common import to_json
+
+    atomic_write_bytes(path, (to_json(obj) + "\n").encode())
+
+
+def build_plan(
+    plan: Any = "incidence",
+    *,
+    config: Any = None,
+    resolution_deg: float = 1e-3,
+    max_geometries: int | None = None,
+    **plan_kw: Any,
+) -> Any:
+    """The ordered plan with motor angles on the controller's grid.
+
+    ``plan``: ``"incidence"`` (= ``"incidence_plane"``), ``"hemispherical"``, a CSV path
+    (``theta_i,phi_i,theta_o,phi_o`` in degrees) or a ``gonio.simulator.cornell_plans.Plan``.
+    ``plan_kw`` go to the plan maker (e.g. ``theta_i_deg=(30, 60)``, ``n=9``).
+    ``max_geometries`` keeps the first geometries of the ordered plan (quick runs).
+    """
+    from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_plans import (
+        Plan,
+        hemispherical_plan,
+        incidence_plane_plan,
+        order_plan,
+        read_plan_csv,
+    )
+
+    cfg = config or CornellConfig()
+    kin = cfg.kinematics
+    if isinstance(plan, Plan):
+        p = plan
+    elif plan in ("incidence", "incidence_plane"):
+        p = incidence_plane_plan(kin=kin, **plan_kw)
+    elif plan == "hemispherical":
+        p = hemispherical_plan(kin=kin, **plan_kw)
+    elif isinstance(plan, str | os.PathLike) and Path(plan).is_file():
+        p = read_plan_csv(plan, kin)
+    else:
+        raise ValueError(f"plan = {plan!r}: expected one of {list(PLANS)}, a CSV file or a Plan")
+    if not (resolution_deg > 0 and math.isfinite(resolution_deg)):
+        raise ValueError(f"resolution_deg = {resolution_deg!r}: expected > 0")
+    p = order_plan(p)
+    if max_geometries is not None:
+        if int(max_geometries) < 1:
+            raise ValueError(f"max_geometries = {max_geometries!r}: expected >= 1")
+        p = p.subset(np.arange(min(int(max_geometries), len(p))))
+    deg = np.round(np.degrees(p.angles) / resolution_deg) * resolution_deg
+    deg = np.round(deg, 6)  # exactly what the controller is sent (6 decimals)
+    q = p.subset(np.arange(len(p)))
+    q.angles = np.radians(deg)
+    q.reachable = p.reachable & np.array([kin.within_limits(a) for a in q.angles], dtype=bool)
+    q = q.measurable()
+    q.meta = {**p.meta, "resolution_deg": resolution_deg, "n_geometries": len(q)}
+    return q
+
+
+def _samples_from(angles_rad, values, sigmas, kin, metadata) -> BRDFSamples:
+    from gonio.simulator.cornell import BANDS_NM, forward
+
+    wi, wo = forward(np.asarray(angles_rad, float), kin)
+    nb = len(BANDS_NM)
+    n = len(wi)
+    return BRDFSamples.from_directions(
+        np.repeat(wi, nb, axis=0),
+        np.repeat(wo, nb, axis=0),
+        np.asarray(values, float).reshape(-1),
+        np.asarray(sigmas, float).reshape(-1),
+        wavelength_nm=np.tile(BANDS_NM, n),
+        metadata=metadata,
+    )
+
+
+# ----------------------------------------------------------------------------- fit
+def _truth_and_template(material: str, fit_mode: str, start: dict | None = None):
+    from gonio import brdf, materials
+    from gonio.simulator.cornell import BANDS_NM
+
+    truth = materials.get(material)
+    if truth.name != "li_torrance":
+        raise ValueError(f"material = {material!r}: expected a li_torrance preset")
+    tp = truth.params
+    nb = len(BANDS_NM)
+    params: dict[str, Any] = {}
+    fixed: dict[str, Any] = {}
+    free_k = []
+    for k in ("k_dd", "k_udf", "k_uds", "k_fs"):
+        v = np.asarray(tp[k], float)
+        if np.all(v == 0):
+            params[k] = 0.0
+            fixed[k] = 0.0
+        else:
+            params[k] = np.full(nb, 0.5)
+            free_k.append(k)
+    for k in ("f0", "n_ior", "specular", "shadowing", "effective_roughness", "shortcut"):
+        if k in tp:
+            params[k] = tp[k]
+    params["wavelength_nm"] = BANDS_NM.copy()
+    mirror = bool(tp.get("specular", True)) and "k_dd" in free_k
+    if mirror:
+        from gonio.simulator.cornell import CornellConfig
+
+        params["d_omega_i"] = CornellConfig().source_solid_angle  # eq. 16's top hat
+    mode = fit_mode
+    if mode == "auto":
+        mode = "both" if mirror else "sigma_fixed"
+    if mode not in ("both", "sigma_fixed", "tau_fixed"):
+        raise ValueError(f"fit_mode = {fit_mode!r}: expected 'auto', 'both', 'sigma_fixed', 'tau_fixed'")
+    s0 = dict(start or {})
+    params["sigma"] = float(s0.get("sigma", tp["sigma"] * (1.0 if mode == "sigma_fixed" else 1.2)))
+    params["tau"] = float(s0.get("tau", tp["tau"] * (1.0 if mode == "tau_fixed" else 0.8)))
+    if mode == "sigma_fixed":
+        fixed["sigma"] = float(tp["sigma"])
+        params["sigma"] = float(tp["sigma"])
+    elif mode == "tau_fixed":
+        fixed["tau"] = float(tp["tau"])
+        params["tau"] = float(tp["tau"])
+    template = brdf.create("li_torrance", **params)
+    return truth, template, fixed, mode, free_k, mirror
+
+
+def _mirror_partial_mask(samples: BRDFSamples, config: Any) -> np.ndarray:
+    """Rows whose detector cone only partly overlaps the mirror image of the source cone.
+
+    There the instrument reads a fraction of the mirror peak that the model's top hat
+    (``d_omega_i``) cannot represent; the fit leaves them out (a laboratory knows its cone
+    sizes).
+    """
+    from gonio.simulator.cornell import _alpha
+
+    wi, wo = samples.wi, samples.wo
+    d = wi * np.array([-1.0, -1.0, 1.0])
+    beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
+    a_s, a_d = _alpha(config.source_solid_angle), _alpha(config.detector_solid_angle)
+    return (beta > abs(a_s - a_d)) & (beta < a_s + a_d)
+
+
+def fit_li_torrance(
+    samples: BRDFSamples,
+    material: str,
+    *,
+    fit_mode: str = "auto",
+    residual: str = "absolute",
+    config: Any = None,
+    start: dict | None = None,
+) -> tuple[Any, dict[str, Any]]:
+    """Fit ``li_torrance`` (shared σ, τ; per-band k's) to Cornell ``samples`` of ``material``.
+
+    The model's structure comes from the preset (components that are zero stay off, f0 / n,
+    switches); the k's start flat at 0.5 and σ, τ at +20 % / −20 % of the table values
+    (``start`` overrides). ``fit_mode``: ``"auto"`` (both σ and τ with a mirror part, else σ
+    held at the table value), ``"both"``, ``"sigma_fixed"``, ``"tau_fixed"``. Rows where the
+    detector sees part of the mirror peak are excluded (:func:`_mirror_partial_mask`).
+    Returns ``(FitResult, info)``.
+    """
+    from gonio import fit as _fit
+    from gonio.simulator.cornell import CornellConfig
+
+    cfg = config or CornellConfig()
+    truth, template, fixed, mode, free_k, mirror = _truth_and_template(material, fit_mode, start)
+    use = samples
+    n_excl = 0
+    if mirror:
+        bad = _mirror_partial_mask(samples, cfg)
+        n_excl = int(bad.sum())
+        if n_excl:
+            use = samples.subset(np.flatnonzero(~bad))
+    kw: dict[str, Any] = {"fixed": fixed} if fixed else {}
+    res = _fit.fit(use, template, residual=residual, guess=False, **kw)
+    info = {
+        "fit_mode": mode,
+        "free_k": free_k,
+        "mirror_part": mirror,
+        "n_excluded_partial_mirror": n_excl,
+        "fixed": {k: (v if np.ndim(v) == 0 else list(v)) for k, v in fixed.items()},
+        "truth_model": truth,
+    }
+    return res, info
+
+
+def _summarise(material, res, info, samples, seed, noise, timings, extra) -> dict[str, Any]:
+    truth = info["truth_model"]
+    tp = truth.params
+    truth_flat: dict[str, float] = {}
+    for k in ("sigma", "tau"):
+        truth_flat[k] = float(tp[k])
+    for k in info["free_k"]:
+        v = np.broadcast_to(np.asarray(tp[k], float), (31,))
+        for b in range(31):
+            truth_flat[f"{k}[{b}]"] = float(v[b])
+    fitp = {k: float(v) for k, v in res.params.items()}
+    stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in res.stderr.items()}
+    rel, within = {}, {}
+    for k, tv in truth_flat.items():
+        if k in fitp and k in res.free:
+            rel[k] = abs(fitp[k] - tv) / abs(tv) if tv else abs(fitp[k])
+            s = res.stderr.get(k, float("nan"))
+            within[k] = bool(abs(fitp[k] - tv) <= 3 * s) if math.isfinite(s) else None
+    if "sigma" in fitp and "tau" in fitp:
+        r_true = truth_flat["sigma"] / truth_flat["tau"]
+        r_fit = fitp["sigma"] / fitp["tau"]
+        rel["sigma/tau"] = abs(r_fit - r_true) / r_true
+        fitp["sigma/tau"] = r_fit
+        truth_flat["sigma/tau"] = r_true
+    krel = [rel[k] for k in rel if "[" in k]
+    kwithin = [within[k] for k in within if "[" in k and within[k] is not None]
+    return {
+        "material": material,
+        "model": "li_torrance",
+        "instrument": "cornell",
+        "truth": truth_flat,
+        "fit": fitp,
+        "stderr": stderr,
+        "relative_error": rel,
+        "within_3_sigma": within,
+        "k_summary": {
+            "n": len(krel),
+            "max_relative_error": max(krel) if krel else None,
+            "n_within_3_sigma": int(sum(kwithin)),
+            "n_with_stderr": len(kwithin),
+        },
+        "fit_mode": info["fit_mode"],
+        "mirror_part": info["mirror_part"],
+        "n_excluded_partial_mirror": info["n_excluded_partial_mirror"],
+        "rms": float(res.rms),
+        "rms_relative": float(res.rms_relative),
+        "chi2_dof": float(res.chi2_dof) if math.isfinite(res.chi2_dof) else None,
+        "n_samples": len(samples),
+        "converged": bool(res.converged),
+        "timings_s": {k: round(float(v), 4) for k, v in timings.items()},
+        "seed": int(seed),
+        "noise": bool(noise),
+        **extra,
+    }
+
+
+# ----------------------------------------------------------------------------- campaign
+def run_cornell_campaign(
+    material: str = "garnet_red_paint",
+    *,
+    plan: Any = "incidence",
+    noise: bool | float = True,
+    seed: int = 0,
+    out: str | os.PathLike | None = None,
+    through_drivers: bool = False,
+    quiet: bool = True,
+    reference: str = "standard",
+    resume: bool = False,
+    fit: bool = True,
+    fit_mode: str = "auto",
+    residual: str = "absolute",
+    config: Any = None,
+    resolution_deg: float = 1e-3,
+    max_geometries: int | None = None,
+    time_scale: float = 1e4,
+    faults: dict[str, Any] | None = None,
+    checkpoint_every: int = 50,
+    prime: bool = True,
+    on_measurement: Any = None,
+    plan_kw: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run a Cornell campaign end to end; the summary dict (also ``out/summary.json``).
+
+    Parameters
+    ----------
+    material : str
+        A ``li_torrance`` preset (gonio/materials/data/li_torrance.json).
+    plan : {"incidence", "hemispherical"} or path or Plan
+        Sampling plan (:func:`build_plan`; ``plan_kw`` to its maker).
+    noise : bool
+        Detector noise on/off (any non-zero number is on).
+    seed : int
+        Noise seed (the simulator's keyed noise: same seed, same samples on both paths).
+    out : path, optional
+        Results directory (module docstring).
+    through_drivers : bool
+        Drive the fake devices through the real drivers (:mod:`gonio.hardware`) instead of
+        simulating in-process.
+    resume : bool
+        Through drivers: continue from ``out/checkpoint.npz`` (measured geometries are not
+        measured again).
+    fit : bool
+        Fit ``li_torrance`` (:func:`fit_li_torrance`, ``fit_mode``, ``residual``).
+    resolution_deg : float
+        Motor-angle grid of the controller (both paths use the same rounded angles).
+    max_geometries : int, optional
+        Only the first geometries of the ordered plan.
+    time_scale : float
+        Simulated seconds per real second on the fake bench.
+    faults : dict, optional
+        ``{"esp300": Faults, "usb2000plus": Faults}`` for the fake devices.
+    checkpoint_every : int
+        Checkpoint write interval (records; also every 2 s).
+    prime : bool
+        Let the fake bench's simulator precompute the plan's poses (speed only).
+    on_measurement : callable(j, n), optional
+        Called after each geometry through drivers (progress, fault injection in tests).
+    """
+    from gonio.simulator.cornell import CornellConfig, simulate_campaign
+    from gonio.simulator.cornell_plans import Timing, estimate_run_time
+
+    from dataclasses import replace
+
+    from gonio.hardware import eeprom_coeffs
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    cfg = config or CornellConfig()
+    # the spectrometer's calibration as its EEPROM stores it, on both paths
+    cfg = replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
+    noise_on = bool(noise)
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed = {seed!r}: expected a non-negative integer")
+    if reference not in ("standard", "direct"):
+        raise ValueError(f"reference = {reference!r}: expected 'standard' or 'direct'")
+    from gonio import materials
+
+    materials.info(material)  # unknown preset -> ValueError listing them
+    t = time.perf_counter()
+    p = build_plan(
+        plan, config=cfg, resolution_deg=resolution_deg, max_geometries=max_geometries,
+        **(plan_kw or {}),
+    )  # fmt: skip
+    timings["plan"] = time.perf_counter() - t
+    outp = Path(out) if out is not None else None
+    settings = {
+        "material": material,
+        "plan": str(plan) if not hasattr(plan, "angles") else "custom",
+        "plan_kw": plan_kw or {},
+        "n_geometries": len(p),
+        "noise": noise_on,
+        "seed": int(seed),
+        "reference": reference,
+        "resolution_deg": resolution_deg,
+        "max_geometries": max_geometries,
+        "through_drivers": bool(through_drivers),
+    }
+    if outp is not None:
+        outp.mkdir(parents=True, exist_ok=True)
+        _write_json(outp / "plan.json", settings)
+    meta = {"instrument": "cornell", "material": material, "seed": int(seed), "noise": noise_on}
+    extra: dict[str, Any] = {"through_drivers": bool(through_drivers), "n_geometries": len(p)}
+    t = time.perf_counter()
+    if not through_drivers:
+        samples = simulate_campaign(
+            p, material, rng=int(seed), noise=noise_on, reference=reference, config=cfg,
+            order=False,
+        )  # fmt: skip
+        t_int = None
+        samples.metadata.update(meta)
+        extra["n_saturated"] = int(samples.metadata.get("n_saturated", 0))
+    else:
+        from gonio.hardware import Checkpoint, fake_cornell_rig, fingerprint, run_cornell_measurements
+
+        key = fingerprint({**settings, "angles": fingerprint(np.round(np.degrees(p.angles), 6))})
+        ck = None
+        if outp is not None:
+            ck = Checkpoint(outp / "checkpoint.npz", key, every=checkpoint_every)
+            if resume:
+                ck.load()
+            elif (outp / "checkpoint.npz").exists():
+                (outp / "checkpoint.npz").unlink()
+                (outp / "reference.npz").unlink(missing_ok=True)
+        with fake_cornell_rig(
+            material, seed=int(seed), noise=noise_on, config=cfg, time_scale=time_scale,
+            faults=faults, prime=p.angles if prime else None,
+        ) as (rig, parts):  # fmt: skip
+            res = run_cornell_measurements(
+                rig,
+                np.degrees(p.angles),
+                config=cfg,
+                reference=reference,
+                checkpoint=ck,
+                reference_path=(outp / "reference.npz") if outp is not None else None,
+                on_measurement=on_measurement,
+            )
+            extra["device_reads"] = rig.n_reads
+            extra["device_moves"] = rig.n_moves
+            extra["simulated_bench_s"] = parts["bench"].now()
+        sig = res["sigma"] if noise_on else np.full_like(res["sigma"], np.nan)
+        samples = _samples_from(
+            np.radians(res["positions_deg"]), res["value"], sig, cfg.kinematics, meta
+        )
+        t_int = res["t"]
+        extra["resumed_geometries"] = int(res["resumed"])
+        extra["n_saturated"] = int(res["saturated"].sum())
+        if ck is not None:
+            extra["checkpoint_writes"] = ck.writes
+    timings["measure"] = time.perf_counter() - t
+    if t_int is None:
+        est = estimate_run_time(p, Timing(), None)
+        est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
+    else:
+        est_h = float(estimate_run_time(p, Timing(), t_int)["total_h"])
+    extra["estimated_real_instrument_h"] = est_h
+    if outp is not None:
+        t = time.perf_counter()
+        samples.write(outp / "samples.csv")
+        timings["save_samples"] = time.perf_counter() - t
+    summary: dict[str, Any]
+    if fit:
+        t = time.perf_counter()
+        res_fit, info = fit_li_torrance(
+            samples, material, fit_mode=fit_mode, residual=residual, config=cfg
+        )
+        timings["fit"] = time.perf_counter() - t
+        timings["total"] = time.perf_counter() - t_start
+        summary = _summarise(material, res_fit, info, samples, seed, noise_on, timings, extra)
+        if outp is not None:
+            _write_json(outp / "fit.json", res_fit.to_dict())
+    else:
+        timings["total"] = time.perf_counter() - t_start
+        summary = {
+            "material": material, "model": None, "n_samples": len(samples),
+            "timings_s": {k: round(v, 4) for k, v in timings.items()}, "seed": int(seed),
+            "noise": noise_on, **extra,
+        }  # fmt: skip
+    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if outp else {}
+    if outp is not None:
+        _write_json(outp / "summary.json", summary)
+    if not quiet:
+        print(summary_text(summary), file=sys.stderr)
+    summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
+    return summary
+
+
+def summary_text(summary: dict[str, Any]) -> str:
+    """A short text report of a summary."""
+    lines = [
+        f"{summary['material']} (cornell, {'drivers' if summary.get('through_drivers') else 'in-process'}): "
+        f"{summary.get('n_geometries')} geometries, {summary['n_samples']} samples, "
+        f"est. real instrument {summary.get('estimated_real_instrument_h', float('nan')):.2f} h"
+    ]
+    if summary.get("model"):
+        fitp, rel, se = summary["fit"], summary["relative_error"], summary["stderr"]
+        for k in ("sigma", "tau", "sigma/tau"):
+            if k in rel:
+                lines.append(
+                    f"  {k}: truth {summary['truth'][k]:.5g} fit {fitp[k]:.5g}"
+                    f" (stderr {se.get(k) or float('nan'):.2g}) rel.err {100 * rel[k]:.3f}%"
+                )
+        ks = summary["k_summary"]
+        if ks["max_relative_error"] is not None:
+            lines.append(
+                f"  k's: {ks['n']} free, max rel.err {100 * ks['max_relative_error']:.3f}%,"
+                f" {ks['n_within_3_sigma']}/{ks['n_with_stderr']} within 3 stderr"
+            )
+        lines.append(
+            f"  fit_mode {summary['fit_mode']}, converged {summary['converged']}, rms {summary['rms']:.4g}"
+        )
+    lines.append("  time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timings_s"].items()))
+    return "\n".join(lines)
+
+
+def identifiability_scan(
+    material: str, ratios: tuple[float, ...] = (0.5, 1.0, 2.0), *, plan: Any = "incidence"
+) -> list[dict[str, float]]:
+    """Noise-free check of the σ/τ degeneracy: the largest relative change of the model over
+    the plan's geometries when σ and τ are both scaled by each factor (σ/τ fixed)."""
+    from gonio import materials
+    from gonio.simulator.cornell import CornellConfig
+
+    cfg = CornellConfig()
+    p = build_plan(plan, config=cfg)
+    from gonio.simulator.cornell import forward
+
+    wi, wo = forward(p.angles, cfg.kinematics)
+    base = materials.get(material)
+    f0 = base(wi, wo)
+    out = []
+    for r in ratios:
+        m = type(base)(**{**base.params, "sigma": base.params["sigma"] * r, "tau": base.params["tau"] * r})
+        f = m(wi, wo)
+        big = f0 > 1e-3 * f0.max()
+        out.append({"scale": r, "max_rel_change": float(np.max(np.abs(f - f0)[big] / f0[big]))})
+    return out
+
+
+# ----------------------------------------------------------------------------- entry point
+def main(argv: list[str] | None = None) -> int:
+    """``python -m gonio.cornell_campaign [--material M] [--plan P] ...``"""
+    ap = argparse.ArgumentParser(prog="python -m gonio.cornell_campaign", description=__doc__.split("\n")[0])
+    ap.add_argument("--material", default="garnet_red_paint")
+    ap.add_argument("--plan", default="incidence", help="incidence | hemispherical | CSV path")
+    ap.add_argument("--noise", default="on", choices=("on", "off"))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--through-drivers", action="store_true")
+    ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--fit-mode", default="auto", choices=("auto", "both", "sigma_fixed", "tau_fixed"))
+    ap.add_argument("--max-geometries", type=int, default=None)
+    ap.add_argument("--time-scale", type=float, default=1e4)
+    ap.add_argument("--no-fit", action="store_true")
+    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--json", default=None, help="write the summary here")
+    a = ap.parse_args(argv)
+    try:
+        s = run_cornell_campaign(
+            a.material, plan=a.plan, noise=a.noise == "on", seed=a.seed, out=a.out,
+            through_drivers=a.through_drivers, quiet=True, resume=a.resume, fit=not a.no_fit,
+            fit_mode=a.fit_mode, max_geometries=a.max_geometries, time_scale=a.time_scale,
+        )  # fmt: skip
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    s.pop("_samples", None)
+    if not a.quiet:
+        print(summary_text(s))
+    if a.json:
+        _write_json(Path(a.json), s)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
