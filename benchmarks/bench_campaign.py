@@ -5,6 +5,7 @@ Usage::
     python benchmarks/bench_campaign.py                 # default campaign timing (3 runs)
     python benchmarks/bench_campaign.py --ward-table    # every Ward-table material, noise off/on
     python benchmarks/bench_campaign.py --others        # blue paint, plaster, Li-Torrance
+    python benchmarks/bench_campaign.py --blue-paint    # only Lafortune's blue paint
     python benchmarks/bench_campaign.py --json out.json
 
 Every run goes through the whole chain (simulated LBL captures → eq. 2 reduction → fit).
@@ -29,12 +30,22 @@ def ward_table_materials(latex: bool = False) -> list[str]:
     return [n for n in materials.names("ward") if materials.info(n).get("table") in tables]
 
 
-def run_one(material: str, model: str | None, noise: float, compare=(), plots=False) -> dict:
+#: Lafortune et al. table 1: blue paint, three lobes (C_x = C_y, C_z, n) and "Diffuse" 0.13
+#: (002_f0198a78c5ab063e.txt §6.2); there is no preset of it, so it is measured as a user BRDF.
+BLUE_PAINT = dict(
+    lobes=[(0.86, 0.86, 0.77, 18.6), (-0.41, -0.41, 0.018, 2.58), (-1.03, -1.03, 0.70, 63.8)],
+    rho_d=0.13,
+)
+
+
+def run_one(
+    material: str, model: str | None, noise: float, compare=(), plots=False, truth=None
+) -> dict:
     plan = campaign.Plan(
         material=material, model=model, noise=noise, compare=tuple(compare), plots=plots
     )
     with tempfile.TemporaryDirectory() as d:
-        res = campaign.run(plan, d if plots else None)
+        res = campaign.run(plan, d if plots else None, truth=truth)
     s = res.summary
     pulls = {}
     for k, t in s["truth"].items():
@@ -53,6 +64,10 @@ def run_one(material: str, model: str | None, noise: float, compare=(), plots=Fa
         "chi2_dof": s["chi2_dof"],
         "n_samples": s["n_samples"],
         "compare": {k: v.get("rms") for k, v in s["compare"].items()},
+        "lobes": s.get("lobes"),
+        "fit": s["fit"],
+        "truth": s["truth"],
+        "identifiable": res.fit.identifiable,
         "time_s": s["timings_s"]["total"],
         "timings_s": s["timings_s"],
     }
@@ -72,19 +87,29 @@ def _print(r: dict) -> None:
         + ")",
         flush=True,
     )
+    f, t = r.get("fit", {}), r.get("truth", {})
+    if "sigma" in f and "tau" in f and "tau" in t:  # Li-Torrance: the slope sigma/tau
+        print(f"    sigma/tau fit {f['sigma'] / f['tau']:.5g} truth {t['sigma'] / t['tau']:.5g}"
+              f" (identifiable: {r['identifiable']})")  # fmt: skip
+    if r.get("lobes"):
+        for name in ("truth", "fit"):
+            print(f"    lobes ({name}, sorted by n): "
+                  + "; ".join("(" + ", ".join(f"{x:.4g}" for x in lb) + ")"
+                              for lb in r["lobes"][name]))  # fmt: skip
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ward-table", action="store_true")
     ap.add_argument("--others", action="store_true")
+    ap.add_argument("--blue-paint", action="store_true")
     ap.add_argument("--latex", action="store_true", help="with --ward-table: latex tables too")
     ap.add_argument("--materials", default=None, help="comma-separated subset")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     out: dict = {}
-    if not (args.ward_table or args.others):
+    if not (args.ward_table or args.others or args.blue_paint):
         times = []
         for _ in range(args.repeat):
             t = time.perf_counter()
@@ -113,11 +138,25 @@ def main(argv=None) -> int:
         print(f"default noise: {n3}/{len(on)} materials with every parameter within 3 sigma")
     if args.others:
         rows = []
+        from gonio import brdf
+
+        if not materials.names("lafortune"):
+            truth = brdf.create("lafortune", **BLUE_PAINT)
+            r = run_one("blue_paint", "lafortune", 1.0, ("ward",), truth=truth)
+            _print(r)
+            rows.append(r)
         for material, model, comp in _others():
             r = run_one(material, model, 1.0, comp)
             _print(r)
             rows.append(r)
         out["others"] = rows
+    if args.blue_paint:
+        from gonio import brdf
+
+        truth = brdf.create("lafortune", **BLUE_PAINT)
+        r = run_one("blue_paint", "lafortune", 1.0, ("ward",), truth=truth)
+        _print(r)
+        out["blue_paint"] = r
     if args.json:
         with open(args.json, "w") as f:
             json.dump(

@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     cluster = LocalCluster(
-        n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=":0"
     )
     client = Client(cluster)
     client.run(lambda: __import__("gonio.sweep"))  # same warm imports as in-process

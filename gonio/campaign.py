@@ -130,12 +130,15 @@ class Plan:
     thinning: tuple[tuple[str, float], ...] = (("rel_tol", 0.002), ("min_split", 2))
     thinning_mode: str = "average"
 
-    def resolved(self) -> Plan:
-        """The plan with defaults filled in and every field validated."""
-        from gonio import materials
+    def resolved(self, truth: Any = None) -> Plan:
+        """The plan with defaults filled in and every field validated.
+
+        ``truth`` (a BRDF measured instead of a preset, see :func:`run`) lets ``material``
+        be a free label.
+        """
         from gonio.fit import RESIDUALS, parse_model
 
-        info = materials.info(self.material)  # raises ValueError listing the presets
+        info = _material_info(self.material, truth)  # ValueError listing the presets
         model = self.model or info["model"]
         parse_model(model)  # unknown model -> ValueError listing the registered names
         if self.instrument != "lbl":
@@ -208,6 +211,21 @@ class Plan:
         if "thinning" in kw:
             kw["thinning"] = tuple(tuple(x) for x in kw["thinning"])
         return cls(**kw)
+
+
+def _material_info(material: str, truth: Any = None) -> dict[str, Any]:
+    """The preset record, or one made from ``truth`` (a BRDF) for a label that is no preset."""
+    from gonio import materials
+
+    if truth is None or material in materials.names():
+        info = materials.info(material)
+        if truth is not None:
+            info = {**info, "model": truth.name, "params": dict(truth.params)}
+        return info
+    if not isinstance(material, str) or not material.strip() or any(c.isspace() for c in material):
+        raise ValueError(f"material {material!r} must be a name without white space")
+    return {"model": truth.name, "params": dict(truth.params), "class": "dielectric",
+            "source": "user BRDF"}  # fmt: skip
 
 
 def default_plan(**overrides: Any) -> Plan:
@@ -424,6 +442,7 @@ def run(
     quiet: bool = True,
     stream: Any = None,
     instrument: Any = None,
+    truth: Any = None,
 ) -> CampaignResult:
     """Run a campaign and (if ``out`` is given) write its results directory.
 
@@ -442,6 +461,9 @@ def run(
     instrument : object, optional
         Something with ``shoot(sample, theta_i, phi_i, seed) -> [(image, meta), ...]``;
         default the simulated LBL instrument of the plan.
+    truth : BRDF, optional
+        Measure this model instead of the preset's (``plan.material`` is then a label; the
+        summary compares the fit with this truth). Resuming checks the plan, not ``truth``.
 
     Returns
     -------
@@ -451,12 +473,17 @@ def run(
     from gonio import materials
 
     t_start = time.perf_counter()
-    plan = (plan or Plan()).resolved()
+    if truth is not None:
+        from gonio.brdf import BRDF
+
+        if not isinstance(truth, BRDF):
+            raise ValueError(f"truth must be a BRDF model, got {type(truth).__name__}")
+    plan = (plan or Plan()).resolved(truth)
     outp = Path(out) if out is not None else None
     if outp is not None:
-        _check_out(outp, plan, resume)
-    info = materials.info(plan.material)
-    truth_model = materials.get(plan.material)
+        _check_out(outp, plan, resume, truth)
+    info = _material_info(plan.material, truth)
+    truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
     timings: dict[str, float] = {}
 
@@ -608,12 +635,12 @@ def run(
     return CampaignResult(plan, outp, samples, result, compare, summary, timings)
 
 
-def _check_out(outp: Path, plan: Plan, resume: bool) -> None:
+def _check_out(outp: Path, plan: Plan, resume: bool, truth: Any = None) -> None:
     outp.mkdir(parents=True, exist_ok=True)
     pfile = outp / "plan.json"
     if resume and pfile.is_file():
         try:
-            old = Plan.from_dict(json.loads(pfile.read_text())).resolved()
+            old = Plan.from_dict(json.loads(pfile.read_text())).resolved(truth)
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{pfile}: cannot resume, unreadable plan ({exc})") from None
         if _capture_fields(old) != _capture_fields(plan):
@@ -704,7 +731,16 @@ def _summary(plan, info, truth, result, compare, samples, n_pixels, n_loaded) ->
                 "converged": v.converged,
                 "params": v.params,
             }
+    extra = {}
+    if truth.name == "lafortune" and result.model.name == "lafortune":
+        # lobes are an object parameter: list them (sorted by exponent n) side by side
+        def lobes(m: Any) -> list[list[float]]:
+            return sorted(([float(x) for x in lb[:4]] for lb in m.params["lobes"]),
+                          key=lambda lb: lb[3])  # fmt: skip
+
+        extra["lobes"] = {"truth": lobes(truth), "fit": lobes(result.model)}
     return {
+        **extra,
         "material": plan.material,
         "class": info.get("class"),
         "model": plan.model,

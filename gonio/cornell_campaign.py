@@ -32,7 +32,7 @@ Results directory (``out``)::
 from __future__ import annotations
 
 import argparse
-import json
+import dataclasses
 import math
 import os
 import sys
@@ -164,7 +164,9 @@ def _truth_and_template(material: str, fit_mode: str, start: dict | None = None)
     if mode == "auto":
         mode = "both" if mirror else "sigma_fixed"
     if mode not in ("both", "sigma_fixed", "tau_fixed"):
-        raise ValueError(f"fit_mode = {fit_mode!r}: expected 'auto', 'both', 'sigma_fixed', 'tau_fixed'")
+        raise ValueError(
+            f"fit_mode = {fit_mode!r}: expected 'auto', 'both', 'sigma_fixed', 'tau_fixed'"
+        )
     s0 = dict(start or {})
     params["sigma"] = float(s0.get("sigma", tp["sigma"] * (1.0 if mode == "sigma_fixed" else 1.2)))
     params["tau"] = float(s0.get("tau", tp["tau"] * (1.0 if mode == "tau_fixed" else 0.8)))
@@ -194,6 +196,66 @@ def _mirror_partial_mask(samples: BRDFSamples, config: Any) -> np.ndarray:
     return (beta > abs(a_s - a_d)) & (beta < a_s + a_d)
 
 
+def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np.ndarray:
+    """What the instrument reads for ``model`` at directions ``wi``, ``wo`` (G, 3): the model
+    averaged over the source and detector cones (the instrument's own quadrature rule), its
+    mirror part through the cones' overlap — the known response of the instrument, the same
+    computation as ``CornellInstrument.expected_brdf`` (convolve=True) but from directions.
+    Returns (G, n_bands).
+    """
+    from gonio.simulator.cornell import _alpha, _cone_points, _cone_rule, _lens_area
+
+    c = config
+    a_s, a_d = _alpha(c.source_solid_angle), _alpha(c.detector_solid_angle)
+    rs, ps, ws = _cone_rule(a_s, c.quad_rings, c.quad_phi)
+    rd, pd, wd = _cone_rule(a_d, c.quad_rings, c.quad_phi)
+    pure = model
+    if model.params.get("d_omega_i") is not None:
+        pure = type(model)(**{**model.params, "d_omega_i": None})
+    wi = np.asarray(wi, float).reshape(-1, 3)
+    wo = np.asarray(wo, float).reshape(-1, 3)
+    ci = np.where(wi[:, 2] > 0, wi[:, 2], 1.0)
+    nb = len(np.atleast_1d(model.wavelengths_nm)) if model.wavelengths_nm is not None else 1
+    out = np.zeros((len(wi), nb))
+    for chunk in np.array_split(np.arange(len(wi)), max(1, len(wi) // 128)):
+        if chunk.size == 0:
+            continue
+        pi = _cone_points(wi[chunk], rs, ps)
+        po = _cone_points(wo[chunk], rd, pd)
+        f = pure.evaluate_unchecked(pi[:, :, None, :], po[:, None, :, :])
+        f = f.reshape(f.shape[:3] + (nb,))
+        wgt = ws[:, None] * wd[None, :] * np.clip(pi[:, :, 2], 0, None)[:, :, None]
+        out[chunk] = np.einsum("mijb,mij->mb", f, wgt) / ci[chunk, None]
+    if pure.has_delta:
+        d, rho = pure.delta(wi)
+        rho = np.asarray(rho, float).reshape(len(wi), -1)
+        if np.any(rho > 0):
+            beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
+            w = _lens_area(beta, a_s, a_d) / (math.pi * a_d**2 * c.source_solid_angle) / ci
+            out = out + rho * w[:, None]
+    return out
+
+
+def _cone_ratio(model: Any, samples: BRDFSamples, config: Any) -> np.ndarray:
+    """Per row: instrument response / plain model (1 where the model is negligible)."""
+    from gonio.simulator.cornell import BANDS_NM
+
+    key = np.round(np.c_[samples.wi, samples.wo], 12)
+    _uniq, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    wi, wo = samples.wi[first], samples.wo[first]
+    resp = cone_response(model, wi, wo, config)
+    plain = np.asarray(model(wi, wo), float).reshape(resp.shape)
+    band = np.clip(np.rint((samples.wavelength_nm - BANDS_NM[0]) / 10.0).astype(int), 0, 30)
+    r_rows = resp[inv, band]
+    p_rows = plain[inv, band]
+    big = p_rows > 1e-6 * np.max(plain, axis=0)[band]
+    ratio = np.ones(len(samples))
+    ok = big & (r_rows > 0)
+    ratio[ok] = np.clip(r_rows[ok] / p_rows[ok], 0.5, 2.0)
+    return ratio
+
+
 def fit_li_torrance(
     samples: BRDFSamples,
     material: str,
@@ -202,6 +264,7 @@ def fit_li_torrance(
     residual: str = "absolute",
     config: Any = None,
     start: dict | None = None,
+    cone_corrections: int = 2,
 ) -> tuple[Any, dict[str, Any]]:
     """Fit ``li_torrance`` (shared σ, τ; per-band k's) to Cornell ``samples`` of ``material``.
 
@@ -210,7 +273,13 @@ def fit_li_torrance(
     (``start`` overrides). ``fit_mode``: ``"auto"`` (both σ and τ with a mirror part, else σ
     held at the table value), ``"both"``, ``"sigma_fixed"``, ``"tau_fixed"``. Rows where the
     detector sees part of the mirror peak are excluded (:func:`_mirror_partial_mask`).
-    Returns ``(FitResult, info)``.
+
+    The instrument reads the BRDF averaged over the source (≈0.0005 sr) and detector cones;
+    near a narrow lobe this differs from the model's point value by up to a few per cent,
+    enough to bias σ/τ and to trade k_dd against k_fs. With ``cone_corrections = n`` the fit
+    is repeated ``n`` times on the data divided by (instrument response / point model) of the
+    previous fit (:func:`cone_response`; the cone sizes are known properties of the
+    instrument). Returns ``(FitResult, info)``.
     """
     from gonio import fit as _fit
     from gonio.simulator.cornell import CornellConfig
@@ -226,7 +295,15 @@ def fit_li_torrance(
             use = samples.subset(np.flatnonzero(~bad))
     kw: dict[str, Any] = {"fixed": fixed} if fixed else {}
     res = _fit.fit(use, template, residual=residual, guess=False, **kw)
+    history = [{k: float(res.params[k]) for k in ("sigma", "tau")}]
+    for _ in range(int(cone_corrections)):
+        ratio = _cone_ratio(res.model, use, cfg)
+        corr = dataclasses.replace(use, value=use.value / ratio, sigma=use.sigma / ratio)
+        res = _fit.fit(corr, res.model, residual=residual, guess=False, **kw)
+        history.append({k: float(res.params[k]) for k in ("sigma", "tau")})
     info = {
+        "cone_corrections": int(cone_corrections),
+        "history": history,
         "fit_mode": mode,
         "free_k": free_k,
         "mirror_part": mirror,
@@ -279,6 +356,8 @@ def _summarise(material, res, info, samples, seed, noise, timings, extra) -> dic
             "n_with_stderr": len(kwithin),
         },
         "fit_mode": info["fit_mode"],
+        "cone_corrections": info["cone_corrections"],
+        "sigma_tau_history": info["history"],
         "mirror_part": info["mirror_part"],
         "n_excluded_partial_mirror": info["n_excluded_partial_mirror"],
         "rms": float(res.rms),
@@ -317,6 +396,8 @@ def run_cornell_campaign(
     prime: bool = True,
     on_measurement: Any = None,
     plan_kw: dict[str, Any] | None = None,
+    cone_corrections: int = 2,
+    device_timeout: float = 2.0,
 ) -> dict[str, Any]:
     """Run a Cornell campaign end to end; the summary dict (also ``out/summary.json``).
 
@@ -339,7 +420,8 @@ def run_cornell_campaign(
         Through drivers: continue from ``out/checkpoint.npz`` (measured geometries are not
         measured again).
     fit : bool
-        Fit ``li_torrance`` (:func:`fit_li_torrance`, ``fit_mode``, ``residual``).
+        Fit ``li_torrance`` (:func:`fit_li_torrance`, ``fit_mode``, ``residual``,
+        ``cone_corrections``).
     resolution_deg : float
         Motor-angle grid of the controller (both paths use the same rounded angles).
     max_geometries : int, optional
@@ -348,6 +430,8 @@ def run_cornell_campaign(
         Simulated seconds per real second on the fake bench.
     faults : dict, optional
         ``{"esp300": Faults, "usb2000plus": Faults}`` for the fake devices.
+    device_timeout : float
+        The drivers' reply timeout (s) on the fake devices.
     checkpoint_every : int
         Checkpoint write interval (records; also every 2 s).
     prime : bool
@@ -355,12 +439,11 @@ def run_cornell_campaign(
     on_measurement : callable(j, n), optional
         Called after each geometry through drivers (progress, fault injection in tests).
     """
-    from gonio.simulator.cornell import CornellConfig, simulate_campaign
-    from gonio.simulator.cornell_plans import Timing, estimate_run_time
-
     from dataclasses import replace
 
     from gonio.hardware import eeprom_coeffs
+    from gonio.simulator.cornell import CornellConfig, simulate_campaign
+    from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -409,7 +492,12 @@ def run_cornell_campaign(
         samples.metadata.update(meta)
         extra["n_saturated"] = int(samples.metadata.get("n_saturated", 0))
     else:
-        from gonio.hardware import Checkpoint, fake_cornell_rig, fingerprint, run_cornell_measurements
+        from gonio.hardware import (
+            Checkpoint,
+            fake_cornell_rig,
+            fingerprint,
+            run_cornell_measurements,
+        )
 
         key = fingerprint({**settings, "angles": fingerprint(np.round(np.degrees(p.angles), 6))})
         ck = None
@@ -422,8 +510,8 @@ def run_cornell_campaign(
                 (outp / "reference.npz").unlink(missing_ok=True)
         with fake_cornell_rig(
             material, seed=int(seed), noise=noise_on, config=cfg, time_scale=time_scale,
-            faults=faults, prime=p.angles if prime else None,
-        ) as (rig, parts):  # fmt: skip
+            faults=faults, prime=p.angles if prime else None, device_timeout=device_timeout,
+        ) as (rig, _parts):  # fmt: skip
             res = run_cornell_measurements(
                 rig,
                 np.degrees(p.angles),
@@ -435,7 +523,6 @@ def run_cornell_campaign(
             )
             extra["device_reads"] = rig.n_reads
             extra["device_moves"] = rig.n_moves
-            extra["simulated_bench_s"] = parts["bench"].now()
         sig = res["sigma"] if noise_on else np.full_like(res["sigma"], np.nan)
         samples = _samples_from(
             np.radians(res["positions_deg"]), res["value"], sig, cfg.kinematics, meta
@@ -460,7 +547,12 @@ def run_cornell_campaign(
     if fit:
         t = time.perf_counter()
         res_fit, info = fit_li_torrance(
-            samples, material, fit_mode=fit_mode, residual=residual, config=cfg
+            samples,
+            material,
+            fit_mode=fit_mode,
+            residual=residual,
+            config=cfg,
+            cone_corrections=cone_corrections,
         )
         timings["fit"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t_start
@@ -485,8 +577,9 @@ def run_cornell_campaign(
 
 def summary_text(summary: dict[str, Any]) -> str:
     """A short text report of a summary."""
+    how = "drivers" if summary.get("through_drivers") else "in-process"
     lines = [
-        f"{summary['material']} (cornell, {'drivers' if summary.get('through_drivers') else 'in-process'}): "
+        f"{summary['material']} (cornell, {how}): "
         f"{summary.get('n_geometries')} geometries, {summary['n_samples']} samples, "
         f"est. real instrument {summary.get('estimated_real_instrument_h', float('nan')):.2f} h"
     ]
@@ -505,9 +598,12 @@ def summary_text(summary: dict[str, Any]) -> str:
                 f" {ks['n_within_3_sigma']}/{ks['n_with_stderr']} within 3 stderr"
             )
         lines.append(
-            f"  fit_mode {summary['fit_mode']}, converged {summary['converged']}, rms {summary['rms']:.4g}"
+            f"  fit_mode {summary['fit_mode']}, converged {summary['converged']},"
+            f" rms {summary['rms']:.4g}"
         )
-    lines.append("  time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timings_s"].items()))
+    lines.append(
+        "  time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timings_s"].items())
+    )
     return "\n".join(lines)
 
 
@@ -527,18 +623,29 @@ def identifiability_scan(
     base = materials.get(material)
     f0 = base(wi, wo)
     out = []
+    rho0 = base.delta(wi)[1] if base.has_delta else None
+    if rho0 is not None and not np.max(rho0) > 0:
+        rho0 = None
     for r in ratios:
-        m = type(base)(**{**base.params, "sigma": base.params["sigma"] * r, "tau": base.params["tau"] * r})
+        m = type(base)(**{**base.params, "sigma": base.params["sigma"] * r,
+                          "tau": base.params["tau"] * r})  # fmt: skip
         f = m(wi, wo)
         big = f0 > 1e-3 * f0.max()
-        out.append({"scale": r, "max_rel_change": float(np.max(np.abs(f - f0)[big] / f0[big]))})
+        ch = float(np.max(np.abs(f - f0)[big] / f0[big])) if big.any() else 0.0
+        if rho0 is not None:  # the mirror part's reflectance rho = k_dd F S exp(-g)
+            rho = m.delta(wi)[1]
+            ok = rho0 > 1e-3 * rho0.max()
+            ch = max(ch, float(np.max(np.abs(rho - rho0)[ok] / rho0[ok])))
+        out.append({"scale": r, "max_rel_change": ch})
     return out
 
 
 # ----------------------------------------------------------------------------- entry point
 def main(argv: list[str] | None = None) -> int:
     """``python -m gonio.cornell_campaign [--material M] [--plan P] ...``"""
-    ap = argparse.ArgumentParser(prog="python -m gonio.cornell_campaign", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m gonio.cornell_campaign", description=__doc__.split("\n")[0]
+    )
     ap.add_argument("--material", default="garnet_red_paint")
     ap.add_argument("--plan", default="incidence", help="incidence | hemispherical | CSV path")
     ap.add_argument("--noise", default="on", choices=("on", "off"))
@@ -546,7 +653,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--through-drivers", action="store_true")
     ap.add_argument("--resume", action="store_true")
-    ap.add_argument("--fit-mode", default="auto", choices=("auto", "both", "sigma_fixed", "tau_fixed"))
+    ap.add_argument(
+        "--fit-mode", default="auto", choices=("auto", "both", "sigma_fixed", "tau_fixed")
+    )
     ap.add_argument("--max-geometries", type=int, default=None)
     ap.add_argument("--time-scale", type=float, default=1e4)
     ap.add_argument("--no-fit", action="store_true")

@@ -990,6 +990,10 @@ def fit(
     if best is None:
         raise ValueError(f"no start of the fit of {_label(template)!r} could be evaluated")
     if screen:
+        if screen_fun is not fun:  # converge on the subset (cheap), then polish on all rows
+            sub_best = solve(screen_fun, best.x, budget, 1e-10)
+            nfev += sub_best.nfev
+            best = sub_best
         best = solve(fun, best.x, budget, 1e-10)
         nfev += best.nfev
 

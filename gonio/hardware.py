@@ -54,11 +54,12 @@ __all__ = [
     "Checkpoint",
     "CornellRig",
     "LBLDriverInstrument",
-    "fake_cornell_rig",
     "eeprom_coeffs",
+    "fake_cornell_rig",
     "fake_lbl_rig",
     "fingerprint",
     "run_cornell_measurements",
+    "run_lbl_through_drivers",
 ]
 
 #: Motor axes of the Cornell instrument (degrees), in the order of the simulator's angles.
@@ -240,9 +241,7 @@ class CornellRig:
         """Move the three motor axes to ``angles_deg``; the encoder positions (degrees)."""
         a = np.asarray(angles_deg, dtype=np.float64)
         got = self.move(dict(zip(CORNELL_MOTORS, a.tolist())))
-        return np.array(
-            [got[n] if n in got else self.axes[n].position() for n in CORNELL_MOTORS]
-        )
+        return np.array([got[n] if n in got else self.axes[n].position() for n in CORNELL_MOTORS])
 
     def forget_positions(self) -> None:
         """Forget where the axes are (after a reconnect: move them again before reading)."""
@@ -567,6 +566,37 @@ class LBLDriverInstrument:
         return frames
 
 
+def run_lbl_through_drivers(
+    plan: Any = None,
+    out: str | Path | None = None,
+    *,
+    resume: bool = False,
+    quiet: bool = True,
+    time_scale: float = 1e4,
+    f_number: float = 4.0,
+) -> Any:
+    """An LBL campaign (:func:`gonio.campaign.run`) on the fake devices through the drivers.
+
+    The plan's ``exposures_s`` (default ``(0.01,)``) is the bracket at ``f_number``; the
+    captures are checkpointed per group by ``gonio.campaign`` (``raw/<key>/done.json``), so
+    ``resume=True`` continues an interrupted run without capturing a group twice.
+    """
+    from gonio import campaign
+
+    plan = (plan or campaign.Plan()).resolved()
+    exp = plan.exposures_s or (0.01,)
+    with fake_lbl_rig(
+        plan.material,
+        seed=plan.seed,
+        noise=plan.noise > 0,
+        mirror=plan.mirror,
+        time_scale=time_scale,
+        exposures_s=exp,
+        f_number=f_number,
+    ) as (dev, _parts):
+        return campaign.run(plan, out, resume=resume, quiet=quiet, instrument=dev)
+
+
 # ----------------------------------------------------------------------------- fake rigs
 @contextlib.contextmanager
 def fake_cornell_rig(
@@ -578,6 +608,7 @@ def fake_cornell_rig(
     time_scale: float = 1e4,
     faults: Mapping[str, Any] | None = None,
     prime: ArrayLike | None = None,
+    device_timeout: float = 2.0,
 ) -> Iterator[tuple[CornellRig, dict[str, Any]]]:
     """The Cornell instrument on fake devices: ``(rig, parts)``.
 
@@ -590,7 +621,8 @@ def fake_cornell_rig(
     opened with the real drivers. ``faults`` maps ``"esp300"`` / ``"usb2000plus"`` to
     ``gonio.drivers.fake.faults.Faults`` objects. ``prime`` (N, 3 motor angles, radians)
     precomputes the simulator's cone-averaged BRDF at those poses (a simulator-side cache;
-    it does not change any value). ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
+    it does not change any value). ``device_timeout``: the drivers' reply timeout (s).
+    ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
     ``instrument`` (the simulator behind the spectrometer), ``controllers``.
     """
     from gonio.drivers.esp300 import ESP300
@@ -598,8 +630,8 @@ def fake_cornell_rig(
     from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.fake.faults import Faults
     from gonio.drivers.usb2000 import USB2000Plus
-    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
     from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
     from gonio.simulator.cornell import CornellConfig, CornellInstrument
 
     cfg = config or CornellConfig()
@@ -630,21 +662,26 @@ def fake_cornell_rig(
             f = faults.get("esp300") if k == 0 else None
             srv = FakeESP300Server(bench, axes=list(g), faults=f or Faults()).start()
             servers.append(srv)
-            ctl = ESP300.open(srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=2.0)
+            ctl = ESP300.open(
+                srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=device_timeout
+            )
             ctl.enable()
             ctls.append(ctl)
-        spec = USB2000Plus.open(name, n_pixels=None)
+        spec = USB2000Plus.open(name, n_pixels=None, timeout=max(device_timeout, 0.5))
         axes: dict[str, Axis] = {}
         for ctl in ctls:
             axes.update(ctl.axes)
         rig = CornellRig(axes, spec)
-        yield rig, {
-            "bench": bench,
-            "servers": servers,
-            "usb": name,
-            "instrument": inst,
-            "controllers": ctls,
-        }
+        yield (
+            rig,
+            {
+                "bench": bench,
+                "servers": servers,
+                "usb": name,
+                "instrument": inst,
+                "controllers": ctls,
+            },
+        )
     finally:
         if spec is not None:
             with contextlib.suppress(Exception):
@@ -701,8 +738,8 @@ def fake_lbl_rig(
     from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.ptp import PTPCamera
     from gonio.simulator import LBLInstrument
-    from gonio.simulator.bench import Bench, Stage, lbl_camera_render
     from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Bench, Stage, lbl_camera_render
 
     inst = LBLInstrument(mirror=mirror)
     gen = np.random.default_rng(seed)

@@ -650,7 +650,7 @@ def _dask_client(scheduler: str | None, dask_local: int | None):
         n_workers=int(dask_local or 2),
         threads_per_worker=1,
         processes=True,
-        dashboard_address=None,
+        dashboard_address=":0",
     )
     return Client(cluster), cluster
 
@@ -703,7 +703,9 @@ def run_sweep(
         Process count for ``"process"`` (default: CPU count).
     scheduler, dask_local, client
         For ``"dask"``: a scheduler address, or a number of ``LocalCluster`` workers to
-        start, or an existing ``distributed.Client``.
+        start, or an existing ``distributed.Client``. With a remote scheduler, ``root`` must
+        be on a file system every worker shares (the tasks write their folders there) and
+        gonio (plus any ``"module:function"`` task) must be installed on the workers.
     retries
         How often a failed task (or, for ``"process"``, a broken pool) is retried.
     fn
@@ -728,7 +730,7 @@ def run_sweep(
         raise ValueError(f"scheduler/dask_local/client need executor='dask', got {executor!r}")
     if retries < 0:
         raise ValueError(f"retries must be >= 0, got {retries!r}")
-    root = Path(root)
+    root = Path(root).resolve()  # workers elsewhere resolve relative paths differently
     root.mkdir(parents=True, exist_ok=True)
     tasks = expand(spec)
     progress = progress or (lambda _res: None)
@@ -736,6 +738,7 @@ def run_sweep(
     startup = 0.0
     results: dict[str, dict] = {}
     own = None
+    made_client = False
     w = 1
     if executor == "process":
         w = int(workers or os.cpu_count() or 1)
@@ -743,6 +746,7 @@ def run_sweep(
             raise ValueError(f"workers must be >= 1, got {workers!r}")
     elif executor == "dask" and client is None:
         client, own = _dask_client(scheduler, dask_local)
+        made_client = True
         startup = time.perf_counter() - t0
 
     def execute(batch: list[dict]) -> Iterator[dict]:
@@ -762,8 +766,9 @@ def run_sweep(
                 break
             results.update({r["task_id"]: r for r in execute(again)})
     finally:
-        if own is not None:
+        if made_client:
             client.close()
+        if own is not None:
             own.close()
     wall = time.perf_counter() - t0
 

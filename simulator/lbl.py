@@ -9,8 +9,11 @@ The per-instrument geometry — pixel → camera ray → mirror point → sample
 direction — is traced exactly once and cached (:class:`Geometry`); a capture then costs one
 BRDF evaluation over the pixels that see the sample, a background fill and the ADC. Skipped
 when the scene does not need them: pixels outside the image circle or seeing no sample (never
-evaluated), pixels outside the beam footprint (rejected before the BRDF), spectral bands of a
-grey BRDF (:meth:`LBLInstrument.capture_bands` evaluates once), random draws when noise is off,
+evaluated), pixels outside the beam footprint (the generic path evaluates the BRDF only on
+lit pixels; the Ward kernel masks them), the beam-footprint test itself when every pixel sees
+the sample centre (ellipsoid), the float image and a second pass when noise is off (the ADC
+is fused into the render pass), spectral bands of a grey BRDF
+(:meth:`LBLInstrument.capture_bands` evaluates once), random draws when noise is off,
 f-stops adding no unsaturated pixel (:meth:`LBLInstrument.plan_bracket`), and the
 source-cone average when the lobe is much wider than the source.
 

@@ -198,3 +198,17 @@ def test_select_thinning_keeps_one_pixel_per_cell():
     assert len(campaign.select_pixels(tab, rng=1)) == 10  # reproducible
     with pytest.raises(ValueError, match="thinning_mode"):
         campaign.Plan(thinning_mode="median").resolved()
+
+
+def test_a_user_brdf_can_be_measured_under_a_free_label():
+    from gonio import brdf
+
+    truth = brdf.create("ward", rho_d=0.3, rho_s=0.05, alpha_x=0.1, alpha_y=0.1)
+    plan = campaign.Plan(material="my_sample", theta_i_deg=(30.0, 60.0), plots=False)
+    res = campaign.run(plan, truth=truth)
+    assert res.summary["material"] == "my_sample" and res.summary["truth"]["rho_d"] == 0.3
+    assert res.summary["converged"] and max(res.summary["relative_error"].values()) < 0.02
+    with pytest.raises(ValueError, match="unknown material"):
+        campaign.run(plan)  # without a truth the label must be a preset
+    with pytest.raises(ValueError, match="truth must be a BRDF"):
+        campaign.run(plan, truth="ward")

@@ -372,3 +372,35 @@ def test_lafortune_lobes_are_flattened_and_recovered():
     for g, w in zip(got, want):
         assert np.allclose(g[:4], w[:4], rtol=1e-4)
     assert r.params["rho_d"] == pytest.approx(0.2, rel=1e-4)
+
+
+def test_li_torrance_per_band_ks_with_one_shared_roughness():
+    """Li-Torrance §5: one sigma, tau for all bands, per-band k's (eq. 15 residual).
+
+    Off the specular direction the model depends on sigma and tau only through the slope
+    sigma/tau (its eq. 10 simplification), so the fit recovers the slope and the k's and
+    reports sigma, tau individually as unidentifiable (infinite standard errors).
+    """
+    wl = np.array([450.0, 550.0, 650.0])
+    true = brdf.create("li_torrance", k_dd=[0.3, 0.4, 0.5], k_uds=[0.1, 0.2, 0.05],
+                       sigma=0.3, tau=3.0, wavelength_nm=wl)  # fmt: skip
+    g = _geometry(n_ti=5, n_o=150)
+    v = np.asarray(true(g.wi, g.wo))
+    tables = []
+    for k, w in enumerate(wl):
+        t = g.subset(np.arange(len(g)))
+        t.value = v[:, k]
+        t.wavelength_nm = np.full(len(t), w)
+        tables.append(t)
+    s = BRDFSamples.concatenate(tables)
+    start = brdf.create("li_torrance", wavelength_nm=wl, k_dd=[0.5] * 3, k_uds=[0.3] * 3)
+    r = fit.fit(s, start, fixed={"k_udf": 0.0, "k_fs": 0.0}, residual="li_torrance")
+    assert r.converged
+    assert sorted(r.free) == sorted(
+        [f"k_dd[{k}]" for k in range(3)] + [f"k_uds[{k}]" for k in range(3)] + ["sigma", "tau"]
+    )  # wavelength_nm and n_ior are held by default
+    for k in range(3):
+        assert r.params[f"k_dd[{k}]"] == pytest.approx(true.params["k_dd"][k], rel=1e-6)
+        assert r.params[f"k_uds[{k}]"] == pytest.approx(true.params["k_uds"][k], rel=1e-6)
+    assert r.params["sigma"] / r.params["tau"] == pytest.approx(0.1, rel=1e-6)
+    assert not r.identifiable and math.isinf(r.stderr["sigma"]) and math.isinf(r.stderr["tau"])

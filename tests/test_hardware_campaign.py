@@ -7,10 +7,11 @@ import pytest
 
 pytest.importorskip("gonio.simulator.cornell")
 
-from gonio.cornell_campaign import run_cornell_campaign  # noqa: E402
-from gonio.drivers.errors import DeviceError  # noqa: E402
-from gonio.drivers.fake.faults import Faults  # noqa: E402
-from gonio.hardware import Checkpoint, fake_cornell_rig  # noqa: E402
+from gonio.drivers.errors import DeviceError
+from gonio.drivers.fake.faults import Faults
+
+from gonio.cornell_campaign import run_cornell_campaign
+from gonio.hardware import Checkpoint, fake_cornell_rig
 
 SMALL = dict(plan="incidence", plan_kw={"theta_i_deg": (45.0,)}, max_geometries=10, fit=False)
 
@@ -79,7 +80,8 @@ def test_injected_disconnects_then_resume(tmp_path):
     with pytest.raises(DeviceError):
         run_cornell_campaign(
             "garnet_red_paint", seed=4, through_drivers=True, out=tmp_path, on_measurement=inject,
-            faults={"usb2000plus": usb_faults, "esp300": esp_faults}, checkpoint_every=1, **SMALL,
+            faults={"usb2000plus": usb_faults, "esp300": esp_faults}, checkpoint_every=1,
+            device_timeout=0.3, **SMALL,
         )  # fmt: skip
     assert any("disconnect" in x for x in usb_faults.log)
     done = np.load(tmp_path / "checkpoint.npz")["index"].tolist()
@@ -111,3 +113,56 @@ def test_rig_reads_follow_the_accessories():
     assert np.all(nd - dark.min() < sig - dark.min() + 1e-9)
     assert std.sum() != sig.sum()
     assert rig.n_reads == 4
+
+
+def test_lbl_campaign_through_drivers_matches_in_process_without_noise():
+    """ESP300 source arm + sample rotation + changer, PTP camera: 16-bit frames reduced by the
+    calibration pipeline give the in-process samples (noise off, fixed exposure)."""
+    from gonio import campaign
+    from gonio.hardware import fake_lbl_rig
+
+    plan = campaign.Plan(
+        material="rolled_brass", theta_i_deg=(40.0,), rotations_deg=(0.0,), noise=0.0,
+        exposures_s=(0.002,), plots=False,
+    )  # fmt: skip
+    ref = campaign.run(plan, None)
+    with fake_lbl_rig("rolled_brass", noise=False, exposures_s=(0.002,)) as (dev, parts):
+        got = campaign.run(plan, None, instrument=dev)
+        assert dev.n_frames == 3  # standard, background, measured
+        assert parts["bench"].positions()["source"] == 40.0
+    a, b = ref.samples, got.samples
+    assert len(a) == len(b) > 100
+    np.testing.assert_allclose(b.theta_o, a.theta_o, atol=1e-9)
+    np.testing.assert_allclose(b.value, a.value, rtol=1e-6, atol=1e-9)
+
+
+def test_lbl_campaign_through_drivers_resumes_by_capture_group(tmp_path):
+    from gonio import campaign
+    from gonio.hardware import LBLDriverInstrument, run_lbl_through_drivers
+
+    plan = campaign.Plan(
+        material="rolled_brass", theta_i_deg=(20.0, 50.0), rotations_deg=(0.0,), noise=1.0,
+        exposures_s=(0.002,), plots=False, seed=3,
+    )  # fmt: skip
+    calls = []
+    real = LBLDriverInstrument.shoot
+
+    def flaky(self, sample, theta_i, phi_i, seed):
+        calls.append(round(float(np.degrees(theta_i)), 3))
+        if len(calls) == 4:  # the 20-degree groups done; the camera dies on the 50-degree one
+            raise DeviceError("PTP camera", "InitiateCapture", None, "unplugged")
+        return real(self, sample, theta_i, phi_i, seed)
+
+    LBLDriverInstrument.shoot = flaky
+    try:
+        with pytest.raises(DeviceError):
+            run_lbl_through_drivers(plan, tmp_path)
+        assert sorted(p.name for p in (tmp_path / "raw").iterdir() if (p / "done.json").exists()) \
+            == ["t20.00", "t20.00_r000.0"]  # fmt: skip
+        calls.clear()
+        res = run_lbl_through_drivers(plan, tmp_path, resume=True)
+    finally:
+        LBLDriverInstrument.shoot = real
+    assert calls == [50.0, 50.0, 50.0]  # only the missing groups: standard, background, sample
+    assert res.summary["n_captures"]["resumed_groups"] == 2
+    assert len(res.samples) > 100 and res.fit.converged

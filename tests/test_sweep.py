@@ -282,7 +282,7 @@ def dask_client():
     # the test module is not importable on the workers: ship its functions by value
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
     cluster = distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
     )
     client = distributed.Client(cluster)
     yield client
@@ -299,6 +299,11 @@ def test_dask_localcluster_matches_inprocess(tmp_path, dask_client):
         tmp_path / "b" / "results.csv"
     ).read_bytes()
     assert len({t["pid"] for t in b.timings}) == 2  # both workers took part
+    # the same through a scheduler address (what `gonio sweep --scheduler tcp://...` does)
+    addr = dask_client.scheduler.address
+    assert addr.startswith("tcp://")
+    c = sweep.run_sweep(spec, tmp_path / "c", executor="dask", scheduler=addr, plot=False)
+    assert c.rows == a.rows and c.n_run == 8
 
 
 def test_dask_recovers_from_a_killed_worker(tmp_path, dask_client):

@@ -4,10 +4,10 @@ Endpoints as on the real device (high-speed): EP1 OUT 0x01 (commands), EP1 IN 0x
 replies), EP2 OUT 0x02, EP2 IN 0x82 (spectra), EP6 IN 0x86; all bulk, 512-byte packets.
 Commands (first byte): 0x01 initialise, 0x02 integration time (u32 LE, µs), 0x03 strobe
 enable, 0x05 query information (EEPROM slot; reply 17 bytes ``05 slot data[15]`` on 0x81),
-0x06 write information, 0x09 request spectrum (the bench's ``n_pixels`` — 2048 on a USB2000+ — as u16 LE in
-512-byte packets on 0x82, then the one-byte sync packet 0x69), 0x0A trigger mode, 0x6A/0x6B write/read
-FPGA register (``reg lo hi`` on 0x81), 0xFE query status (16 bytes on 0x81). Unknown commands
-are ignored, as the firmware does.
+0x06 write information, 0x09 request spectrum (the bench's ``n_pixels`` — 2048 on a
+USB2000+ — as u16 LE in 512-byte packets on 0x82, then the one-byte sync packet 0x69), 0x0A
+trigger mode, 0x6A/0x6B write/read FPGA register (``reg lo hi`` on 0x81), 0xFE query status
+(16 bytes on 0x81). Unknown commands are ignored, as the firmware does.
 
 The spectrum is what the bench's ``spectrum_render`` gives for the stage positions at the
 start of the integration; it is ready ``integration time`` (simulated) after the request.

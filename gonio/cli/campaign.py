@@ -7,11 +7,31 @@ import math
 from gonio.cli._common import add_json_option, write_json
 
 COMMAND = "campaign"
-HELP = "capture, reduce, fit and report a material on the simulated LBL instrument"
+HELP = "capture, reduce, fit and report a material on a simulated instrument (LBL or Cornell)"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--material", default="rolled_brass", help="material preset")
+    parser.add_argument(
+        "--instrument",
+        choices=("lbl", "cornell"),
+        default="lbl",
+        help="LBL imaging (default) or Cornell three-axis gonioreflectometer",
+    )
+    parser.add_argument(
+        "--material",
+        default=None,
+        help="material preset (default rolled_brass on lbl, garnet_red_paint on cornell)",
+    )
+    parser.add_argument(
+        "--through-drivers",
+        action="store_true",
+        help="cornell: drive fake ESP300 and USB2000+ devices through the drivers",
+    )
+    parser.add_argument(
+        "--plan",
+        default="incidence",
+        help="cornell: incidence | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o (deg)",
+    )
     parser.add_argument("--model", default=None, help="model to fit (default: the preset's)")
     parser.add_argument(
         "--mirror", default="ellipsoid", choices=["ellipsoid", "hemisphere"], help="LBL dome"
@@ -42,7 +62,12 @@ def add_arguments(parser) -> None:
         choices=["absolute", "relative", "log", "li_torrance"],
         help="fit residual",
     )
-    parser.add_argument("--out", default=None, metavar="DIR", help="results directory")
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="results directory (default ./campaign_MATERIAL_seedN)",
+    )
     parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("--quiet", action="store_true", help="no progress bars, no table")
@@ -88,9 +113,33 @@ def parse_noise(text: str) -> float:
     return v
 
 
+def _run_cornell(args) -> int:
+    from gonio.cornell_campaign import run_cornell_campaign, summary_text
+
+    s = run_cornell_campaign(
+        args.material or "garnet_red_paint",
+        plan=args.plan,
+        noise=parse_noise(args.noise) > 0,
+        seed=args.seed,
+        out=args.out,
+        through_drivers=args.through_drivers,
+        resume=args.resume,
+        quiet=args.quiet,
+    )
+    s.pop("_samples", None)
+    if not args.quiet:
+        print(summary_text(s))
+    if args.json:
+        write_json(args.json, s)
+    return 0 if s.get("converged", True) else 1
+
+
 def run(args) -> int:
+    if args.instrument == "cornell":
+        return _run_cornell(args)
     from gonio import campaign
 
+    args.material = args.material or "rolled_brass"
     kw = dict(
         material=args.material,
         model=args.model,

@@ -30,7 +30,7 @@ def add_arguments(parser) -> None:
         "--scheduler",
         metavar="ADDRESS",
         help="run on an existing Dask distributed scheduler, e.g. tcp://host:8786 "
-        "(needs gonio[distributed])",
+        "(needs gonio[distributed]; the workers need gonio and must share the --out folder)",
     )
     ex.add_argument(
         "--dask-local",
