@@ -50,9 +50,9 @@ def _short(s: dict) -> dict:
     }
 
 
-def accuracy(plan: str, materials, seed: int, fit_mode: str) -> None:
+def accuracy(plan: str, materials, seed: int, fit_mode: str, noises=(False, True)) -> None:
     for m in materials:
-        for noise in (False, True):
+        for noise in noises:
             s = run_cornell_campaign(m, plan=plan, noise=noise, seed=seed, fit_mode=fit_mode)
             print(json.dumps(_short(s)), flush=True)
 
@@ -98,10 +98,12 @@ def main() -> None:
     ap.add_argument("--materials", default=",".join(MATERIALS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fit-mode", default="auto")
+    ap.add_argument("--noise", default="both", choices=("on", "off", "both"))
     a = ap.parse_args()
     mats = [m for m in a.materials.split(",") if m]
     if a.what == "accuracy":
-        accuracy(a.plan or "incidence", mats, a.seed, a.fit_mode)
+        noises = {"on": (True,), "off": (False,), "both": (False, True)}[a.noise]
+        accuracy(a.plan or "incidence", mats, a.seed, a.fit_mode, noises)
     elif a.what == "timing":
         timing(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint")
     else:

@@ -236,6 +236,36 @@ def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np
     return out
 
 
+def reference_band_error(ref: Any, config: Any) -> np.ndarray:
+    """Relative standard error (31 bands) that the reference measurement puts on every sample.
+
+    The reference (standard or direct beam, ``config.n_reference_reads`` averaged reads, and
+    the beam-trap stray light) divides every spectrum, so its shot and read noise is common to
+    all samples of a band: a per-band scale error that no number of geometries averages
+    away, and that the fit's standard errors (from the scatter of the samples) do not
+    contain. Computed from the reference rates with the detector model of
+    ``gonio.simulator.cornell._net_rate`` and projected onto the bands like the data.
+    """
+    from gonio.simulator.cornell import BANDS_NM, _hat_projector
+
+    c = config
+    n = max(1, int(c.n_reference_reads))
+    t = float(ref.meta.get("t", 1.0))
+    tr = c.filter_transmission if ref.mode == "direct" else 1.0
+    g, rd, dk = c.gain_e_per_count, c.read_noise_counts, c.dark_rate
+    use, proj = _hat_projector(tuple(np.round(ref.wavelengths_nm, 9)), tuple(BANDS_NM))
+    rel2 = np.zeros(len(BANDS_NM))
+    for q in ("s", "p"):
+        rate = np.maximum(np.asarray(ref.rate[q], float), 1e-30)
+        stray = np.clip(np.asarray(ref.stray[q], float), 0, None)
+        cnt = (rate + stray) * t * tr
+        var = ((cnt + 2 * dk * t) / g + 2 * rd**2) / (t * tr) ** 2 / n
+        var_stray = ((stray * c.t_max + 2 * dk * c.t_max) / g + 2 * rd**2) / c.t_max**2 / n
+        rel = (var + var_stray) / rate**2
+        rel2 += 0.25 * ((proj * proj) @ rel[use])
+    return np.sqrt(rel2)
+
+
 def _cone_ratio(model: Any, samples: BRDFSamples, config: Any) -> np.ndarray:
     """Per row: instrument response / plain model (1 where the model is negligible)."""
     from gonio.simulator.cornell import BANDS_NM
@@ -314,7 +344,9 @@ def fit_li_torrance(
     return res, info
 
 
-def _summarise(material, res, info, samples, seed, noise, timings, extra) -> dict[str, Any]:
+def _summarise(
+    material, res, info, samples, seed, noise, timings, extra, ref_err=None
+) -> dict[str, Any]:
     truth = info["truth_model"]
     tp = truth.params
     truth_flat: dict[str, float] = {}
@@ -326,20 +358,43 @@ def _summarise(material, res, info, samples, seed, noise, timings, extra) -> dic
             truth_flat[f"{k}[{b}]"] = float(v[b])
     fitp = {k: float(v) for k, v in res.params.items()}
     stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in res.stderr.items()}
-    rel, within = {}, {}
+    ref_err = np.zeros(31) if ref_err is None else np.asarray(ref_err, float)
+    # a k of band b also carries the reference's per-band scale error (common to all samples)
+    stderr_total: dict[str, float | None] = {}
+    for k, v in stderr.items():
+        if v is not None and "[" in k:
+            b = int(k.split("[")[1].rstrip("]"))
+            stderr_total[k] = float(math.hypot(v, abs(fitp[k]) * ref_err[b]))
+        else:
+            stderr_total[k] = v
+    rel, within, within_fit = {}, {}, {}
     for k, tv in truth_flat.items():
         if k in fitp and k in res.free:
             rel[k] = abs(fitp[k] - tv) / abs(tv) if tv else abs(fitp[k])
             s = res.stderr.get(k, float("nan"))
-            within[k] = bool(abs(fitp[k] - tv) <= 3 * s) if math.isfinite(s) else None
+            within_fit[k] = bool(abs(fitp[k] - tv) <= 3 * s) if math.isfinite(s) else None
+            st = stderr_total.get(k)
+            within[k] = bool(abs(fitp[k] - tv) <= 3 * st) if st is not None else None
     if "sigma" in fitp and "tau" in fitp:
         r_true = truth_flat["sigma"] / truth_flat["tau"]
         r_fit = fitp["sigma"] / fitp["tau"]
         rel["sigma/tau"] = abs(r_fit - r_true) / r_true
         fitp["sigma/tau"] = r_fit
         truth_flat["sigma/tau"] = r_true
+        free = set(res.free)
+        st_t, st_s = stderr.get("tau"), stderr.get("sigma")
+        sr = None  # standard error of the ratio, where one of the two is held fixed
+        if "tau" in free and "sigma" not in free and st_t is not None:
+            sr = r_fit * st_t / fitp["tau"]
+        elif "sigma" in free and "tau" not in free and st_s is not None:
+            sr = st_s / fitp["tau"]
+        stderr["sigma/tau"] = sr
+        stderr_total["sigma/tau"] = sr
+        if sr is not None and sr > 0:
+            within["sigma/tau"] = bool(abs(r_fit - r_true) <= 3 * sr)
     krel = [rel[k] for k in rel if "[" in k]
     kwithin = [within[k] for k in within if "[" in k and within[k] is not None]
+    kwithin_fit = [within_fit[k] for k in within_fit if "[" in k and within_fit[k] is not None]
     return {
         "material": material,
         "model": "li_torrance",
@@ -347,12 +402,15 @@ def _summarise(material, res, info, samples, seed, noise, timings, extra) -> dic
         "truth": truth_flat,
         "fit": fitp,
         "stderr": stderr,
+        "stderr_with_reference": stderr_total,
+        "reference_band_rel_error": [float(x) for x in ref_err],
         "relative_error": rel,
         "within_3_sigma": within,
         "k_summary": {
             "n": len(krel),
             "max_relative_error": max(krel) if krel else None,
             "n_within_3_sigma": int(sum(kwithin)),
+            "n_within_3_fit_stderr": int(sum(kwithin_fit)),
             "n_with_stderr": len(kwithin),
         },
         "fit_mode": info["fit_mode"],
@@ -416,6 +474,8 @@ def run_cornell_campaign(
     through_drivers : bool
         Drive the fake devices through the real drivers (:mod:`gonio.hardware`) instead of
         simulating in-process.
+    quiet : bool
+        No stage messages on stderr.
     resume : bool
         Through drivers: continue from ``out/checkpoint.npz`` (measured geometries are not
         measured again).
@@ -481,6 +541,9 @@ def run_cornell_campaign(
         outp.mkdir(parents=True, exist_ok=True)
         _write_json(outp / "plan.json", settings)
     meta = {"instrument": "cornell", "material": material, "seed": int(seed), "noise": noise_on}
+    how = "through the drivers on the fake devices" if through_drivers else "in-process"
+    if not quiet:
+        print(f"cornell: measuring {len(p)} geometries {how} ...", file=sys.stderr, flush=True)
     extra: dict[str, Any] = {"through_drivers": bool(through_drivers), "n_geometries": len(p)}
     t = time.perf_counter()
     if not through_drivers:
@@ -490,6 +553,11 @@ def run_cornell_campaign(
         )  # fmt: skip
         t_int = None
         samples.metadata.update(meta)
+        from gonio.simulator.cornell import CornellInstrument
+
+        # the same keyed noise: a fresh instrument calibrates to the very same reference
+        ref_obj = CornellInstrument(material, config=cfg, noise=noise_on, rng=int(seed))
+        ref_obj = ref_obj.calibrate(reference)
         extra["n_saturated"] = int(samples.metadata.get("n_saturated", 0))
     else:
         from gonio.hardware import (
@@ -528,6 +596,7 @@ def run_cornell_campaign(
             np.radians(res["positions_deg"]), res["value"], sig, cfg.kinematics, meta
         )
         t_int = res["t"]
+        ref_obj = res["reference"]
         extra["resumed_geometries"] = int(res["resumed"])
         extra["n_saturated"] = int(res["saturated"].sum())
         if ck is not None:
@@ -545,6 +614,13 @@ def run_cornell_campaign(
         timings["save_samples"] = time.perf_counter() - t
     summary: dict[str, Any]
     if fit:
+        if not quiet:
+            print(
+                f"cornell: fitting li_torrance to {len(samples)} samples "
+                f"({cone_corrections} cone corrections) ...",
+                file=sys.stderr,
+                flush=True,
+            )
         t = time.perf_counter()
         res_fit, info = fit_li_torrance(
             samples,
@@ -556,7 +632,10 @@ def run_cornell_campaign(
         )
         timings["fit"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t_start
-        summary = _summarise(material, res_fit, info, samples, seed, noise_on, timings, extra)
+        ref_err = reference_band_error(ref_obj, cfg) if noise_on else np.zeros(31)
+        summary = _summarise(
+            material, res_fit, info, samples, seed, noise_on, timings, extra, ref_err
+        )
         if outp is not None:
             _write_json(outp / "fit.json", res_fit.to_dict())
     else:
@@ -569,8 +648,6 @@ def run_cornell_campaign(
     summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if outp else {}
     if outp is not None:
         _write_json(outp / "summary.json", summary)
-    if not quiet:
-        print(summary_text(summary), file=sys.stderr)
     summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
     return summary
 

@@ -404,7 +404,8 @@ def run_cornell_measurements(
 
     Returns arrays in plan order: ``value`` and ``sigma`` (N, 31), ``t`` (N,) integration
     times, ``filter`` (N,), ``saturated`` (N,), ``positions_deg`` (N, 3) read back from the
-    axes, ``resumed`` (number of geometries taken from the checkpoint).
+    axes, ``resumed`` (number of geometries taken from the checkpoint), ``reference`` (the
+    ``Reference`` used).
     """
     from gonio.drivers.errors import DeviceError
     from gonio.simulator.cornell import BANDS_NM, CornellConfig, forward, reduce_measurement
@@ -464,6 +465,7 @@ def run_cornell_measurements(
         "positions_deg": np.array([records[j]["positions_deg"] for j in range(n)]).reshape(n, 3),
         "resumed": np.array(resumed),
         "reference_t": np.array(float(ref.meta.get("t", np.nan))),
+        "reference": ref,
     }
     return out
 

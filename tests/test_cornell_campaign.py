@@ -60,8 +60,8 @@ def test_plan_angles_are_on_the_controller_grid():
 
 def test_campaign_writes_results_and_fits(tmp_path):
     s = run_cornell_campaign(
-        "garnet_red_paint", plan="incidence", plan_kw={"theta_i_deg": (30.0,)},
-        max_geometries=24, noise=True, seed=1, out=tmp_path, cone_corrections=1,
+        "laser_paper", plan="incidence", plan_kw={"theta_i_deg": (30.0, 60.0)},
+        noise=True, seed=1, out=tmp_path, cone_corrections=1,
     )  # fmt: skip
     for f in ("plan.json", "samples.csv", "fit.json", "summary.json"):
         assert (tmp_path / f).is_file()
@@ -78,6 +78,11 @@ def test_campaign_writes_results_and_fits(tmp_path):
     assert js["k_summary"]["n"] == 3 * 31
     assert js["estimated_real_instrument_h"] > 0
     assert js["cone_corrections"] == 1 and len(js["sigma_tau_history"]) == 2
+    # the reference's noise is common to all samples of a band: reported and added to the k's
+    ref = np.array(js["reference_band_rel_error"])
+    assert ref.shape == (31,) and np.all((ref > 0) & (ref < 0.01))
+    k = "k_dd[15]"
+    assert js["stderr_with_reference"][k] > js["stderr"][k]
 
 
 def test_sigma_and_tau_scaled_together_leave_a_rough_sample_unchanged():
