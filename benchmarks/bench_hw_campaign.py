@@ -2,6 +2,7 @@
 time of a full hemispherical campaign in-process and through the fake devices.
 
     python benchmarks/bench_hw_campaign.py accuracy [--plan incidence] [--materials a,b]
+        [--noise on|off|both] [--general-fit]   (joint least squares instead of variable projection)
     python benchmarks/bench_hw_campaign.py timing [--plan hemispherical]
     python benchmarks/bench_hw_campaign.py degeneracy
 
@@ -50,10 +51,14 @@ def _short(s: dict) -> dict:
     }
 
 
-def accuracy(plan: str, materials, seed: int, fit_mode: str, noises=(False, True)) -> None:
+def accuracy(
+    plan: str, materials, seed: int, fit_mode: str, noises=(False, True), linear: bool = True
+) -> None:
     for m in materials:
         for noise in noises:
-            s = run_cornell_campaign(m, plan=plan, noise=noise, seed=seed, fit_mode=fit_mode)
+            s = run_cornell_campaign(
+                m, plan=plan, noise=noise, seed=seed, fit_mode=fit_mode, fit_linear=linear
+            )
             print(json.dumps(_short(s)), flush=True)
 
 
@@ -99,11 +104,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fit-mode", default="auto")
     ap.add_argument("--noise", default="both", choices=("on", "off", "both"))
+    ap.add_argument("--general-fit", action="store_true", help="joint fit, no projection")
     a = ap.parse_args()
     mats = [m for m in a.materials.split(",") if m]
     if a.what == "accuracy":
         noises = {"on": (True,), "off": (False,), "both": (False, True)}[a.noise]
-        accuracy(a.plan or "incidence", mats, a.seed, a.fit_mode, noises)
+        accuracy(a.plan or "incidence", mats, a.seed, a.fit_mode, noises, not a.general_fit)
     elif a.what == "timing":
         timing(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint")
     else:

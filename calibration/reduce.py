@@ -334,6 +334,13 @@ def reduce_capture(
         raise ValueError(f"theta_i = {theta_i!r} rad must be in [0, pi/2)")
 
     keep = refl.mask & gvalid
+    if not keep.any():
+        n_sat = sum(int(np.count_nonzero(~m.valid & gvalid)) for m in (m_meas, m_std, m_bg))
+        raise ValueError(
+            f"no pixel survived eq. 2 masking ({int(np.count_nonzero(gvalid))} pixels see the "
+            f"dome; {n_sat} saturated readings): every standard pixel is saturated or not "
+            "significantly above the background — check exposures"
+        )
     wo = to_sample_frame(wo_dome[keep], rotation)
     value = refl.value[keep]
     sigma = refl.sigma[keep]

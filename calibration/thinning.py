@@ -136,7 +136,7 @@ def thin(
     peak_fraction: float = 0.1,
     rel_tol: float = 0.01,
     z: float = 3.0,
-    min_split: int = 8,
+    min_split: int = 2,
 ) -> ThinningResult:
     """Adaptive equal-solid-angle binning of per-pixel samples on the hemisphere.
 

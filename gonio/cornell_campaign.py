@@ -295,6 +295,7 @@ def fit_li_torrance(
     config: Any = None,
     start: dict | None = None,
     cone_corrections: int = 2,
+    linear: bool = True,
 ) -> tuple[Any, dict[str, Any]]:
     """Fit ``li_torrance`` (shared σ, τ; per-band k's) to Cornell ``samples`` of ``material``.
 
@@ -310,6 +311,13 @@ def fit_li_torrance(
     is repeated ``n`` times on the data divided by (instrument response / point model) of the
     previous fit (:func:`cone_response`; the cone sizes are known properties of the
     instrument). Returns ``(FitResult, info)``.
+
+    Every coefficient k enters eq. 2-14 as a pure scale factor (eq. 3 and the top hat of
+    eq. 16 included), and the cone correction only rescales the data, so with ``linear``
+    (default) the k's are solved exactly by bounded linear least squares for each trial σ/τ
+    (``gonio.fit.fit(..., linear=free_k)``, variable projection): the same minimum and
+    standard errors as the joint fit (``linear=False``) at 4 model evaluations per trial
+    instead of finite differences over ~95 parameters.
     """
     from gonio import fit as _fit
     from gonio.simulator.cornell import CornellConfig
@@ -324,6 +332,10 @@ def fit_li_torrance(
         if n_excl:
             use = samples.subset(np.flatnonzero(~bad))
     kw: dict[str, Any] = {"fixed": fixed} if fixed else {}
+    if linear:
+        # the k's enter eq. 2-14 (and the cone-corrected data) as pure scale factors:
+        # variable projection, the same minimum with 4 model evaluations per trial σ/τ
+        kw["linear"] = list(free_k)
     res = _fit.fit(use, template, residual=residual, guess=False, **kw)
     history = [{k: float(res.params[k]) for k in ("sigma", "tau")}]
     for _ in range(int(cone_corrections)):
@@ -456,6 +468,7 @@ def run_cornell_campaign(
     plan_kw: dict[str, Any] | None = None,
     cone_corrections: int = 2,
     device_timeout: float = 2.0,
+    fit_linear: bool = True,
 ) -> dict[str, Any]:
     """Run a Cornell campaign end to end; the summary dict (also ``out/summary.json``).
 
@@ -492,6 +505,10 @@ def run_cornell_campaign(
         ``{"esp300": Faults, "usb2000plus": Faults}`` for the fake devices.
     device_timeout : float
         The drivers' reply timeout (s) on the fake devices.
+    fit_linear : bool
+        Solve the k's by linear least squares per trial σ/τ (variable projection, the
+        default; :func:`fit_li_torrance`); ``False``: the general joint least squares over
+        all parameters (the same fit, ~100 times slower; for comparisons).
     checkpoint_every : int
         Checkpoint write interval (records; also every 2 s).
     prime : bool
@@ -629,6 +646,7 @@ def run_cornell_campaign(
             residual=residual,
             config=cfg,
             cone_corrections=cone_corrections,
+            linear=fit_linear,
         )
         timings["fit"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t_start

@@ -47,6 +47,14 @@ of hiding behind them. ``absolute_sigma=True`` never scales (``curve_fit`` seman
 Jacobian) get an infinite standard error, reported as ``None`` in JSON, and
 ``identifiable=False``. :attr:`FitResult.cov_scale` is the factor applied.
 
+Linear parameters
+-----------------
+``linear=["k_dd", ...]`` names parameters that enter the model as pure scale factors; they
+are then solved exactly (bounded linear least squares, :mod:`gonio.fit_linear`) for every
+trial of the others (variable projection): the same minimum and standard errors as the joint
+fit with far fewer model evaluations (a Cornell Li-Torrance fit with 93 per-band k's: 0.9 s
+instead of 74 s). Spectral models are evaluated once per distinct direction pair.
+
 References
 ----------
 003_0632ad07325ce89d.txt §4 (least-squares fitting of eq. 5a to the reduced data);
@@ -85,6 +93,7 @@ from scipy.optimize import least_squares
 from gonio import brdf as _brdf
 from gonio.brdf.base import BRDF
 from gonio.brdf.composite import Sum
+from gonio.fit_linear import solve_bounded
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -284,6 +293,22 @@ class _Data:
     cos_i: NDArray[np.float64]
     band: NDArray[np.intp] | None  # index into wavelengths, per row
     wavelengths: NDArray[np.float64] | None
+    geometry: tuple[NDArray, NDArray, NDArray] | None = None  # see _unique_geometry
+
+
+def _unique_geometry(d: _Data) -> tuple[NDArray, NDArray, NDArray]:
+    """``(wi_u, wo_u, inverse)``: the distinct direction pairs of ``d`` (cached).
+
+    A spectral model returns every band per direction pair, and spectral tables repeat each
+    geometry once per band: evaluating the distinct pairs only is exact and n_bands times
+    cheaper.
+    """
+    if d.geometry is None or d.geometry[2].shape[0] != d.wi.shape[0]:
+        key = np.concatenate([d.wi, d.wo], axis=1)
+        _u, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inv = np.asarray(inv).reshape(-1)
+        d.geometry = (d.wi[first], d.wo[first], inv)
+    return d.geometry
 
 
 def _prepare(samples: BRDFSamples) -> _Data:
@@ -379,9 +404,10 @@ def _make_layout(template: BRDF, data: _Data, per_band: Sequence[str] | None) ->
 def _predict_layout(layout: _Layout, data: _Data, values: Mapping[str, float]) -> NDArray:
     models = layout.models(values)
     if layout.band_index is not None:  # spectral model
-        v = np.asarray(models[0].evaluate_unchecked(data.wi, data.wo))
+        wi_u, wo_u, inv = _unique_geometry(data)
+        v = np.asarray(models[0].evaluate_unchecked(wi_u, wo_u))
         col = layout.band_index[data.band]
-        out = v[np.arange(v.shape[0]), col]
+        out = v[inv, col]
     elif layout.n_groups == 1:
         out = np.asarray(models[0].evaluate_unchecked(data.wi, data.wo), dtype=np.float64)
         if out.ndim != 1:
@@ -792,6 +818,7 @@ def fit(
     absolute_sigma: bool | None = None,
     guess: bool = True,
     max_nfev: int | None = None,
+    linear: Iterable[str] | None = None,
 ) -> FitResult:
     """Fit ``model`` to ``samples`` by bounded non-linear least squares.
 
@@ -827,6 +854,14 @@ def fit(
         Start from :func:`initial_guess` (default) rather than the template's values.
     max_nfev : int, optional
         Evaluation budget per start (default ``100 · (n_free + 1)``).
+    linear : names, optional
+        Free parameters (flat or base names) on which the model depends linearly, such as
+        Li-Torrance's ``k_dd``, ``k_udf``, ``k_uds``, ``k_fs`` (000_f6f2403beaa91ee8.txt
+        eq. 2-14). They are then solved exactly by bounded linear least squares for every
+        trial of the other parameters (variable projection, :mod:`gonio.fit_linear`): the
+        same minimum and the same standard errors (the Jacobian's linear columns are the
+        basis itself), far fewer model evaluations. Linearity is checked at the start
+        (``ValueError`` otherwise); not with ``residual="log"``.
 
     Returns
     -------
@@ -947,6 +982,20 @@ def fit(
     budget = max_nfev or 100 * (len(free_idx) + 1)
 
     fun_checked(x0)  # a model that cannot be evaluated at the start raises a clear error
+    vp = None
+    if linear is not None:
+        if isinstance(linear, str):
+            raise ValueError(f"linear must be a list of names, got string {linear!r}")
+        lin_set = {i for key in linear for i in _expand(key)}
+        lin_free = [j for j, i in enumerate(free_idx) if i in lin_set]
+        if lin_free:
+            if residual == "log":
+                raise ValueError(
+                    "linear= needs a residual linear in the model value; "
+                    "residual 'log' is not (use 'absolute', 'relative' or 'li_torrance')"
+                )
+            vp = _VarPro(layout, data, res, values, free_idx, lin_free, names, lb, ub)
+            vp.check_linear(x0)
 
     # fixed variable scales from the start's magnitudes: x_scale="jac" rescales every
     # iteration and crawled along Lafortune's c-n valley (536 vs 100 evaluations)
@@ -964,7 +1013,7 @@ def fit(
 
     # multi-start: screen every start with a short run (on a fixed random subset of at most
     # SCREEN_ROWS rows of large tables), then polish the best one on all the data
-    screen = len(starts) > 1
+    screen = len(starts) > 1 and vp is None
     screen_fun = fun
     if screen and len(data.y) > SCREEN_ROWS:
         pick = np.sort(np.random.default_rng(0).choice(len(data.y), SCREEN_ROWS, replace=False))
@@ -977,6 +1026,12 @@ def fit(
     best = None
     nfev = 0
     for xs in starts:
+        if vp is not None:
+            sol = vp.solve(xs, xscale, budget)
+            nfev += sol.nfev
+            if best is None or sol.cost < best.cost:
+                best = sol
+            continue
         try:
             sol = solve(
                 screen_fun, xs, min(budget, 15 * (len(free_idx) + 1)) if screen else budget,
@@ -1002,7 +1057,7 @@ def fit(
     chi2 = float(r @ r)
     dof = n_used - len(free_idx)
     chi2_dof = chi2 / dof if dof > 0 else math.inf
-    J = _jacobian(fun_checked, x, lb, ub, r)
+    J = _jacobian(fun_checked, x, lb, ub, r) if vp is None else vp.jacobian(x, r)
     cov, rank_ok, free_inf = _covariance(J)
     cov_scale = 1.0
     if dof > 0 and math.isfinite(chi2_dof):
@@ -1062,6 +1117,180 @@ def fit(
         wavelengths_nm=None if data.wavelengths is None else data.wavelengths.tolist(),
         time_s=time.perf_counter() - t0,
     )
+
+
+class _VarPro:
+    """Variable projection over the linear free parameters of :func:`fit` (``linear=``).
+
+    The model is ``f = f(a) + A(θ) (k − a)`` in the linear parameters ``k`` (``a``: a base
+    point inside their bounds, 0 where allowed); the basis ``A`` comes from model
+    evaluations: one for ``f(a)`` and one per group of linear parameters that touch
+    disjoint rows (all bands of a per-band parameter at once), so a Li-Torrance fit with
+    93 per-band k's costs 4 model evaluations per trial σ/τ.
+    """
+
+    def __init__(self, layout, data, res, values, free_idx, lin_free, names, lb, ub) -> None:
+        self.layout, self.data, self.res = layout, data, res
+        self.values, self.free_idx, self.names = values, list(free_idx), names
+        self.lin = np.asarray(lin_free, dtype=np.intp)
+        lin_set = set(lin_free)
+        self.nl = np.array([j for j in range(len(free_idx)) if j not in lin_set], np.intp)
+        self.lb, self.ub = lb, ub
+        lo, hi = lb[self.lin], ub[self.lin]
+        self.a = np.clip(0.0, lo, hi)
+        self.step = np.where(self.a + 1.0 <= hi, 1.0, hi - self.a)
+        if np.any(self.step <= 0):
+            bad = [names[free_idx[self.lin[k]]] for k in np.flatnonzero(self.step <= 0)]
+            raise ValueError(f"linear parameters {bad} have empty bounds; expected lower < upper")
+        self.dlo, self.dhi = lo - self.a, hi - self.a
+        self.groups = self._groups()
+        self.n = int(res.mask.sum())
+
+    def _groups(self) -> list[tuple[NDArray[np.intp], NDArray[np.intp] | None]]:
+        """``[(members, key)]``: members index ``self.lin``; ``key`` per used row the member
+        that row depends on (−1: none), or ``None`` for a single member seen by every row."""
+        lay, d = self.layout, self.data
+        if lay.band_index is not None:
+            row_key = lay.band_index[d.band]
+        elif lay.n_groups > 1:
+            row_key = d.band
+        else:
+            row_key = None
+        by_base: dict[str, list[int]] = {}
+        for m, j in enumerate(self.lin):
+            by_base.setdefault(_base_name(self.names[self.free_idx[j]]), []).append(m)
+        out: list[tuple[NDArray[np.intp], NDArray[np.intp] | None]] = []
+        for base, members in by_base.items():
+            idx = []
+            for m in members:
+                name = self.names[self.free_idx[self.lin[m]]]
+                tail = name[len(base) :]
+                ok = tail.startswith("[") and tail.endswith("]") and tail[1:-1].isdigit()
+                idx.append(int(tail[1:-1]) if ok else -1)
+            banded = (
+                row_key is not None
+                and min(idx) >= 0
+                and (lay.band_index is not None or base in lay.per_band)
+                and len(members) > 1
+            )
+            if not banded:
+                out.extend((np.array([m], np.intp), None) for m in members)
+                continue
+            lookup = np.full(max(int(row_key.max()), max(idx)) + 1, -1, np.intp)
+            for pos, i in enumerate(idx):
+                lookup[i] = pos
+            key = lookup[row_key][self.res.mask]
+            out.append((np.array(members, np.intp), key))
+        return out
+
+    def predict(self, x: NDArray) -> NDArray:
+        v = self.values.copy()
+        v[self.free_idx] = x
+        f = _predict_layout(self.layout, self.data, dict(zip(self.names, v.tolist())))
+        return f[self.res.mask]
+
+    def basis(self, x: NDArray) -> tuple[NDArray, NDArray]:
+        """``(f(a), A)`` at the non-linear parameters of ``x`` (used rows)."""
+        x = np.array(x, dtype=np.float64)
+        x[self.lin] = self.a
+        fa = self.predict(x)
+        A = np.zeros((fa.size, self.lin.size))
+        for members, key in self.groups:
+            x1 = x.copy()
+            x1[self.lin[members]] = self.a[members] + self.step[members]
+            dv = self.predict(x1) - fa
+            if key is None:
+                A[:, members[0]] = dv / self.step[members[0]]
+            else:
+                ok = np.flatnonzero(key >= 0)
+                cols = members[key[ok]]
+                A[ok, cols] = dv[ok] / self.step[cols]
+        return fa, A
+
+    def project(self, x: NDArray) -> tuple[NDArray, NDArray]:
+        """The best linear parameters for the non-linear ones of ``x``: ``(x, residual)``."""
+        fa, A = self.basis(x)
+        w = self.res.scale
+        Aw = A * w[:, None]
+        bw = (self.res.y - fa) * w
+        dk = solve_bounded(Aw, bw, self.dlo, self.dhi)
+        x = np.array(x, dtype=np.float64)
+        x[self.lin] = self.a + dk
+        return x, Aw @ dk - bw
+
+    def check_linear(self, x0: NDArray) -> None:
+        x = np.array(x0, dtype=np.float64)
+        frac = np.modf(np.arange(1, self.lin.size + 1) * 0.6180339887)[0]
+        x[self.lin] = self.a + self.step * (0.2 + 0.6 * frac)
+        fa, A = self.basis(x)
+        f = self.predict(x)
+        lin = fa + A @ (x[self.lin] - self.a)
+        tol = 1e-8 * max(float(np.max(np.abs(f))), 1e-300)
+        bad = np.abs(lin - f) > tol
+        if bad.any():
+            raise ValueError(
+                "linear= names parameters the model does not depend on linearly: at a test "
+                f"point the linear prediction misses {int(bad.sum())} of {f.size} values by "
+                f"up to {float(np.max(np.abs(lin - f))):.3g}; expected parameters entering "
+                "as pure scale factors"
+            )
+
+    def solve(self, xs: NDArray, xscale: NDArray, budget: int) -> Any:
+        from types import SimpleNamespace
+
+        if self.nl.size == 0:
+            x, _ = self.project(xs)
+            r = self.res(self._full(x))
+            return SimpleNamespace(
+                x=x, fun=r, cost=0.5 * float(r @ r), status=1, nfev=1,
+                message="linear least squares (no non-linear parameter)",
+            )  # fmt: skip
+        base = np.array(xs, dtype=np.float64)
+
+        def fun(z: NDArray) -> NDArray:
+            xx = base.copy()
+            xx[self.nl] = z
+            try:
+                return self.project(xx)[1]
+            except (ValueError, FloatingPointError, ZeroDivisionError):
+                return np.full(self.n, np.inf)
+
+        nl = self.nl
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sol = least_squares(
+                fun, base[nl], bounds=(self.lb[nl], self.ub[nl]), method="trf",
+                x_scale=xscale[nl], max_nfev=budget, xtol=1e-10, ftol=1e-10, gtol=1e-10,
+            )  # fmt: skip
+        base[nl] = sol.x
+        x, _ = self.project(base)
+        r = self.res(self._full(x))
+        return SimpleNamespace(
+            x=x, fun=r, cost=0.5 * float(r @ r), status=sol.status, nfev=sol.nfev,
+            message=str(sol.message),
+        )  # fmt: skip
+
+    def _full(self, x: NDArray) -> NDArray:
+        v = self.values.copy()
+        v[self.free_idx] = x
+        return _predict_layout(self.layout, self.data, dict(zip(self.names, v.tolist())))
+
+    def jacobian(self, x: NDArray, r0: NDArray) -> NDArray:
+        """Jacobian of the weighted residuals: the basis for the linear columns (exact),
+        central differences for the others (as :func:`_jacobian`)."""
+        J = np.empty((r0.size, len(self.free_idx)))
+        _, A = self.basis(x)
+        J[:, self.lin] = A * self.res.scale[:, None]
+        if self.nl.size:
+            nl = self.nl
+
+            def g(z: NDArray) -> NDArray:
+                xx = np.array(x, dtype=np.float64)
+                xx[nl] = z
+                return self.res(self._full(xx))
+
+            J[:, nl] = _jacobian(g, x[nl], self.lb[nl], self.ub[nl], r0)
+        return J
 
 
 def _as_float(v: Any, key: str) -> float:

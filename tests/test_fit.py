@@ -404,3 +404,83 @@ def test_li_torrance_per_band_ks_with_one_shared_roughness():
         assert r.params[f"k_uds[{k}]"] == pytest.approx(true.params["k_uds"][k], rel=1e-6)
     assert r.params["sigma"] / r.params["tau"] == pytest.approx(0.1, rel=1e-6)
     assert not r.identifiable and math.isinf(r.stderr["sigma"]) and math.isinf(r.stderr["tau"])
+
+
+# ------------------------------------------------------------------ variable projection
+def _li_torrance_bands(noise=0.02, seed=3):
+    wl = np.array([450.0, 550.0, 650.0])
+    true = brdf.create("li_torrance", k_dd=[0.3, 0.4, 0.5], k_uds=[0.1, 0.2, 0.0],
+                       k_fs=[0.5, 1.0, 1.5], sigma=0.3, tau=3.0, wavelength_nm=wl)  # fmt: skip
+    g = _geometry(n_ti=5, n_o=120)
+    v = np.asarray(true(g.wi, g.wo))
+    rng = np.random.default_rng(seed)
+    tables = []
+    for k, w in enumerate(wl):
+        t = g.subset(np.arange(len(g)))
+        sig = noise * v[:, k] + 1e-3
+        t.value = v[:, k] + sig * rng.normal(size=len(t))
+        t.sigma = sig
+        t.wavelength_nm = np.full(len(t), w)
+        tables.append(t)
+    start = brdf.create("li_torrance", wavelength_nm=wl, k_dd=[0.5] * 3, k_uds=[0.3] * 3,
+                        k_fs=[0.5] * 3, sigma=0.3, tau=2.4)  # fmt: skip
+    return BRDFSamples.concatenate(tables), start
+
+
+def _assert_same_fit(a, b, rtol=1e-6):
+    assert a.free == b.free and a.converged and b.converged
+    assert b.chi2 == pytest.approx(a.chi2, rel=1e-9)
+    for k in a.free:
+        va, vb = a.params[k], b.params[k]
+        assert vb == pytest.approx(va, rel=rtol, abs=1e-10), k
+        assert b.stderr[k] == pytest.approx(a.stderr[k], rel=1e-5, abs=1e-12), k
+
+
+def test_linear_parameters_by_variable_projection_give_the_joint_fit():
+    """Li-Torrance is linear in its k's (000_f6f2403beaa91ee8.txt eq. 2-14): solving them
+    exactly per trial tau (linear=) reaches the joint least-squares minimum, with the same
+    standard errors, also where a k sits on its bound (k_uds of the last band is 0)."""
+    s, start = _li_torrance_bands()
+    kw = dict(fixed={"k_udf": 0.0, "sigma": 0.3}, guess=False)
+    joint = fit.fit(s, start, **kw)
+    fast = fit.fit(s, start, linear=["k_dd", "k_uds", "k_fs"], **kw)
+    _assert_same_fit(joint, fast)
+    assert fast.params["k_uds[2]"] < 1e-3
+    assert abs(fast.params["tau"] / 3.0 - 1) < 5 * fast.stderr["tau"] / 3.0
+    # the cosine-weighted residual (eq. 15) is linear in the model too
+    joint = fit.fit(s, start, residual="li_torrance", **kw)
+    fast = fit.fit(s, start, residual="li_torrance", linear=["k_dd", "k_uds", "k_fs"], **kw)
+    _assert_same_fit(joint, fast)
+
+
+def test_linear_grey_per_band_and_scalar_reflectances():
+    """Ward is linear in rho_d and rho_s: per-band copies (grey model, spectral data) and
+    plain scalars give the joint fit's parameters and errors."""
+    true = brdf.create("ward", rho_d=0.2, rho_s=0.1, alpha_x=0.12, alpha_y=0.12)
+    s = _samples(true, noise=0.03, n_ti=5, n_o=60, rotations=(0.0,))
+    _assert_same_fit(fit.fit(s, "ward"), fit.fit(s, "ward", linear=["rho_d", "rho_s"]))
+    tables = []
+    for k, w in enumerate((450.0, 550.0, 650.0)):
+        t = s.subset(np.arange(len(s)))
+        t.value = s.value * (1.0 + 0.2 * k)
+        t.sigma = s.sigma * (1.0 + 0.2 * k)
+        t.wavelength_nm = np.full(len(t), w)
+        tables.append(t)
+    sp = BRDFSamples.concatenate(tables)
+    joint = fit.fit(sp, "ward", per_band=["rho_d", "rho_s"])
+    fast = fit.fit(sp, "ward", per_band=["rho_d", "rho_s"], linear=["rho_d", "rho_s"])
+    _assert_same_fit(joint, fast)
+    assert len(fast.free) == 3 * 2 + 2
+
+
+def test_linear_rejects_parameters_that_are_not_linear():
+    true = brdf.create("ward", rho_d=0.2, rho_s=0.1, alpha_x=0.12, alpha_y=0.12)
+    s = _samples(true, noise=0.03, n_ti=3, n_o=40, rotations=(0.0,))
+    with pytest.raises(ValueError, match="linear"):
+        fit.fit(s, "ward", linear=["alpha_x"])
+    with pytest.raises(ValueError, match="log"):
+        fit.fit(s, "ward", residual="log", linear=["rho_d"])
+    with pytest.raises(ValueError, match="string"):
+        fit.fit(s, "ward", linear="rho_d")
+    with pytest.raises(ValueError, match="no_such"):
+        fit.fit(s, "ward", linear=["no_such"])
