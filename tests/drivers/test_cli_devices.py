@@ -15,7 +15,7 @@ from gonio.drivers.fake import usb as fakeusb
 from gonio.drivers.usb2000 import USB2000Plus
 
 
-def test_devices_serve_json_and_reach_devices():
+def test_devices_serve_json_and_reach_devices(tmp_path):
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -32,6 +32,8 @@ def test_devices_serve_json_and_reach_devices():
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # not the repository root: its gonio/ folder would shadow the installed package
+        cwd=tmp_path,
     )
     try:
         recs = {}
