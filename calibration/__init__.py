@@ -16,6 +16,7 @@ from gonio.calibration.reduce import (
     load_lens,
     reduce_capture,
     reduce_many,
+    reduce_selected,
 )
 from gonio.calibration.thinning import ThinningResult, thin
 
@@ -36,6 +37,7 @@ __all__ = [
     "merge_linear",
     "reduce_capture",
     "reduce_many",
+    "reduce_selected",
     "reflection_directions",
     "thin",
     "trace",

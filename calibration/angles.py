@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gonio._validate import check_scalar
 from gonio.geometry import to_vector
 
 __all__ = [
@@ -49,13 +50,8 @@ MIRROR_KINDS = ("hemisphere", "ellipsoid")
 
 
 def _num(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return v
+    """``value`` as a finite float (:func:`gonio._validate.check_scalar` without bounds)."""
+    return check_scalar(value, name)
 
 
 @dataclass(frozen=True)
@@ -161,7 +157,13 @@ def rotation_z(angle: float) -> NDArray[np.float64]:
 
 def to_sample_frame(w_dome: ArrayLike, rotation: float) -> NDArray[np.float64]:
     """Dome-frame directions → sample frame of a sample rotated by ``rotation`` about ``z``."""
-    return np.asarray(w_dome, dtype=np.float64) @ rotation_z(rotation)  # Rz(−rot) · w
+    w = np.asarray(w_dome, dtype=np.float64)
+    c, s = math.cos(rotation), math.sin(rotation)
+    out = np.empty(np.broadcast_shapes(w.shape, (3,)))
+    out[..., 0] = c * w[..., 0] + s * w[..., 1]  # Rz(−rot) · w, element-wise: a (N, 3) @ (3, 3)
+    out[..., 1] = c * w[..., 1] - s * w[..., 0]  # matmul is slower and BLAS-thread bound
+    out[..., 2] = w[..., 2]
+    return out
 
 
 def camera_directions(lens: Any) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:

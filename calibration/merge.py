@@ -32,7 +32,9 @@ from gonio.calibration.radiometry import (
     Measurement,
     SensorModel,
     _as_image,
+    _check_variance_mode,
     exposure_scale,
+    neighbour_mean,
 )
 from numpy.typing import ArrayLike, NDArray
 
@@ -46,6 +48,8 @@ def merge_linear(
     *,
     sensor: SensorModel | None = None,
     iterations: int = 2,
+    variance: str = "own",
+    variance_at: ArrayLike | None = None,
 ) -> Measurement:
     """Noise-optimal merge of bracketed frames of a linear sensor.
 
@@ -63,6 +67,15 @@ def merge_linear(
         Overrides the sensor parameters read from the first side-car.
     iterations : int
         Re-weighting passes with the model variance at the current estimate.
+    variance : {"own", "neighbours"}
+        Evaluate the noise model (weights and standard error) at the pixel's own merged
+        estimate, or at the mean of its valid 8-neighbours' estimates
+        (:func:`~gonio.calibration.radiometry.neighbour_mean`), which is independent of the
+        pixel's own noise: the weights then carry no bias towards low readings.
+    variance_at : array_like, optional
+        An estimate of the signal (per unit exposure scale, the images' shape) at which the
+        noise model is evaluated instead — e.g. neighbour means computed by the caller when
+        only some pixels are merged. Overrides ``variance``.
 
     Returns
     -------
@@ -128,11 +141,23 @@ def merge_linear(
     def frame_var(k: int, est: NDArray) -> NDArray:
         return (np.maximum(est * scales[k], 0.0) / g + base[k]) / scales[k] ** 2
 
+    nb = _check_variance_mode(variance) == "neighbours"
+    fixed = None
+    if variance_at is not None:
+        fixed = np.asarray(variance_at, dtype=np.float64)
+        if fixed.shape != shape:
+            raise ValueError(f"variance_at has shape {fixed.shape}, expected {shape}")
     for _ in range(max(1, int(iterations))):
+        est = x
+        if fixed is not None:
+            est = np.where(np.isfinite(fixed), fixed, x)
+        elif nb:
+            xn, okn = neighbour_mean(x, have)
+            est = np.where(okn, xn, x)
         wsum = np.zeros(shape)
         xsum = np.zeros(shape)
         for k in range(len(raws)):
-            w = np.where(ok[k], 1.0 / frame_var(k, x), 0.0)
+            w = np.where(ok[k], 1.0 / frame_var(k, est), 0.0)
             wsum += w
             xsum += w * xs[k]
         x = np.where(have, xsum / np.where(have, wsum, 1.0), x)

@@ -38,13 +38,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "VARIANCE_MODES",
     "Measurement",
     "Reflectance",
     "SensorModel",
     "eq2",
     "exposure_scale",
     "linearize",
+    "neighbour_mean",
 ]
+
+#: Where the noise model is evaluated for a pixel's standard error: at the pixel's own noisy
+#: reading (``"own"``) or at the mean of its valid 8-neighbours (``"neighbours"``).
+VARIANCE_MODES = ("own", "neighbours")
 
 QUANTISATION_VAR = 1.0 / 12.0
 
@@ -196,6 +202,37 @@ class Measurement:
         return self.value.shape
 
 
+def neighbour_mean(
+    x: NDArray[np.float64], valid: NDArray[np.bool_]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Leave-one-out local mean: the mean of each pixel's valid 8-neighbours.
+
+    Returns the mean image and where it exists (at least one valid neighbour). The centre pixel
+    is excluded, so the result is statistically independent of the pixel's own noise: a
+    standard error computed from it does not correlate with the reading it belongs to.
+
+    Why it matters: a noise model evaluated at a pixel's own reading gives bright (upward
+    fluctuated) pixels larger σ, so a 1/σ² weighted fit leans towards low readings. Measured on
+    rolled brass (default noise, 6 incidences × 2 rotations, all 2.09 M pixels): ρd −0.356 %
+    (−72 standard errors) with own-reading σ.
+    """
+    import cv2
+
+    m = valid.astype(np.float64)
+    xm = np.where(valid, x, 0.0)
+    k = dict(ddepth=-1, ksize=(3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    s = cv2.boxFilter(xm, **k) - xm
+    c = cv2.boxFilter(m, **k) - m
+    ok = c > 0.5
+    return np.where(ok, s / np.where(ok, c, 1.0), 0.0), ok
+
+
+def _check_variance_mode(variance: str) -> str:
+    if variance not in VARIANCE_MODES:
+        raise ValueError(f"variance {variance!r}; expected one of {list(VARIANCE_MODES)}")
+    return variance
+
+
 def _as_image(x: ArrayLike, name: str) -> NDArray[np.float64]:
     try:
         a = np.asarray(x, dtype=np.float64)
@@ -273,6 +310,8 @@ def eq2(
     rho_standard: float,
     *,
     threshold: float = 5.0,
+    variance: str = "own",
+    ratio_at: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> Reflectance:
     r"""Ward's eq. 2 at every pixel with propagated standard errors.
 
@@ -288,6 +327,14 @@ def eq2(
     threshold : float
         A pixel is kept only if ``V_s − V_b > threshold · σ(V_s − V_b)`` (and all three
         readings are valid); the others are masked (value 0, sigma 0), never divided.
+    variance : {"own", "neighbours"}
+        Evaluate the error propagation's ratio ``r`` and denominator ``d`` at the pixel's own
+        readings, or at the means of its unmasked neighbours (:func:`neighbour_mean`) so that
+        σ does not correlate with the pixel's own noise (pass measurements merged with the
+        same mode). Values are the same either way.
+    ratio_at : (num, den) arrays, optional
+        Estimates of ``V_m − V_b`` and ``V_s − V_b`` at which the propagation is evaluated
+        instead (e.g. neighbour means computed by the caller); overrides ``variance``.
 
     Returns
     -------
@@ -325,7 +372,20 @@ def eq2(
     safe = np.where(mask, den, 1.0)
     r = np.where(mask, num / safe, 0.0)
     c = rho_standard / math.pi
-    var_r = (vm + vb + r * r * var_den - 2.0 * r * vb) / (safe * safe)
     value = np.where(mask, c * r, 0.0)
+    if ratio_at is not None or _check_variance_mode(variance) == "neighbours":
+        if ratio_at is not None:
+            n_nb = np.asarray(ratio_at[0], dtype=np.float64)
+            d_nb = np.asarray(ratio_at[1], dtype=np.float64)
+            if n_nb.shape != num.shape or d_nb.shape != num.shape:
+                raise ValueError(f"ratio_at arrays must have shape {num.shape}")
+            ok = np.isfinite(n_nb) & np.isfinite(d_nb)
+        else:
+            n_nb, ok = neighbour_mean(num, mask)
+            d_nb, _ = neighbour_mean(den, mask)
+        ok &= d_nb > 0.0
+        safe = np.where(ok, d_nb, safe)
+        r = np.where(ok, n_nb / np.where(ok, d_nb, 1.0), r)
+    var_r = (vm + vb + r * r * var_den - 2.0 * r * vb) / (safe * safe)
     sigma = np.where(mask, c * np.sqrt(np.maximum(var_r, 0.0)), 0.0)
     return Reflectance(value, sigma, mask)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -180,24 +181,19 @@ def test_progress_bar_draws_only_when_asked_and_clears():
         Progress(-1)
 
 
-def test_select_thinning_keeps_one_pixel_per_cell():
-    plan = campaign.Plan(theta_i_deg=(40.0,), rotations_deg=(0.0,), plots=False,
-                         thinning_mode="select")  # fmt: skip
+def test_thinning_modes_and_options_are_validated():
+    plan = campaign.Plan(theta_i_deg=(40.0,), rotations_deg=(0.0,), plots=False)
+    assert plan.resolved().thinning_mode == "select"
     res = campaign.run(plan)
-    s = res.samples
-    assert res.summary["converged"] and 1000 < len(s) < res.summary["n_pixels"]
-    # synthetic: 50 pixels in each of 10 well separated directions -> one pixel per cell
-    from gonio.samples import BRDFSamples
-
-    t = np.repeat(np.radians(np.linspace(5, 75, 10)), 50)
-    n = len(t)
-    tab = BRDFSamples(np.full(n, 0.3), np.zeros(n), t, np.zeros(n), np.full(n, 0.05),
-                      np.full(n, 0.001))  # fmt: skip
-    picked = campaign.select_pixels(tab, rng=1)
-    assert len(picked) == 10 and len(np.unique(picked.theta_o)) == 10
-    assert len(campaign.select_pixels(tab, rng=1)) == 10  # reproducible
+    assert res.summary["converged"] and 1000 < len(res.samples) < res.summary["n_pixels"] / 20
+    avg = campaign.run(replace(plan, thinning_mode="average"))
+    assert len(avg.samples) > len(res.samples)
     with pytest.raises(ValueError, match="thinning_mode"):
         campaign.Plan(thinning_mode="median").resolved()
+    with pytest.raises(ValueError, match="rel_tol"):
+        campaign.Plan(thinning=(("rel_tol", 0.01),)).resolved()  # an 'average' option
+    with pytest.raises(ValueError, match="d_over_r"):
+        campaign.Plan(d_over_r=0.7).resolved()
 
 
 def test_a_user_brdf_can_be_measured_under_a_free_label():
