@@ -299,6 +299,10 @@ class _SimulatedLBL:
             kw["half_separation"] = plan.d_over_r * LBLInstrument().radius
         self.inst = LBLInstrument(mirror=plan.mirror, **kw)
 
+    def prepare(self) -> None:
+        """Trace the pixel geometry now (it is cached), e.g. before forking workers."""
+        _ = self.inst.geometry
+
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
         if self.plan.exposures_s:
@@ -429,6 +433,7 @@ def run(
     stream: Any = None,
     instrument: Any = None,
     truth: Any = None,
+    workers: int | None = None,
 ) -> CampaignResult:
     """Run a campaign and (if ``out`` is given) write its results directory.
 
@@ -450,12 +455,16 @@ def run(
     truth : BRDF, optional
         Measure this model instead of the preset's (``plan.material`` is then a label; the
         summary compares the fit with this truth). Resuming checks the plan, not ``truth``.
+    workers : int, optional
+        Processes that capture, save and reduce incidence angles in parallel (and draw the
+        plots). Default: the CPU count (at most 4), for the simulated instrument and a plan
+        of at least 8 incidence angles; 1 runs everything in this process. The result does
+        not depend on it: every capture draws from its own seed (:func:`capture_seed`).
 
     Returns
     -------
     CampaignResult
     """
-    from gonio import fit as _fit
     from gonio import materials
 
     t_start = time.perf_counter()
@@ -473,86 +482,254 @@ def run(
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
     timings: dict[str, float] = {}
 
-    # ------------------------------------------------------------------ capture
+    # ------------------------------------------------------------------ capture + reduce
     raw = outp / "raw" if outp is not None else None
-    groups: list[tuple[str, float, float | None]] = []
-    for th in plan.theta_i_deg:
-        groups.append((_fmt_key(th), th, None))
-        for rot in plan.rotations_deg:
-            groups.append((_fmt_key(th, rot), th, rot))
-    captured: dict[str, dict[str, Frames]] = {}
-    n_loaded = 0
-    t_cap = t_io = 0.0
-    writer = _Writer() if raw is not None else None
-    with Progress(len(groups), "capture", quiet=quiet, stream=stream) as bar:
-        for key, th, rot in groups:
-            seed = capture_seed(plan.seed, key)
-            ti = math.radians(th)
-            if rot is None:
-                shots = {
-                    "standard": lambda ti=ti, s=seed: inst.shoot("standard", ti, 0.0, s),
-                    "background": lambda ti=ti, s=seed: inst.shoot(None, ti, 0.0, s + 1),
-                }
-            else:
-                pr = math.radians(rot)
-                shots = {
-                    "measured": lambda ti=ti, pr=pr, s=seed: inst.shoot(truth_model, ti, pr, s)
-                }
-            try:
-                frames, loaded, tc, tio = _take_group(
-                    raw / key if raw is not None else None, shots, resume, seed, writer
-                )
-            except BaseException:
-                if writer is not None:  # finish what was captured, then stop
-                    writer.wait()
-                raise
-            captured[key] = frames
-            n_loaded += loaded
-            t_cap += tc
-            t_io += tio
-            bar.update(label=f"capture {key}")
-    timings["capture"] = t_cap
-    if t_io:
-        timings["load_raw"] = t_io
+    n_workers = _n_workers(workers, plan, instrument)
+    pool = None
+    if n_workers > 1:
+        pool = _start_pool(n_workers, inst, truth_model, plots=outp is not None and plan.plots)
+    try:
+        per_angle = _capture_and_reduce(
+            plan, raw, resume, truth_model, inst, pool, quiet=quiet, stream=stream
+        )
+        tables = [tb for r in per_angle for tb in r["tables"]]
+        samples = BRDFSamples.concatenate(
+            tables,
+            metadata={
+                "material": plan.material,
+                "instrument": plan.instrument,
+                "mirror": plan.mirror,
+                "seed": plan.seed,
+            },
+        )
+        n_pixels = sum(r["n_pixels"] for r in per_angle)
+        n_loaded = sum(r["n_loaded"] for r in per_angle)
+        timings["capture"] = sum(r["t_capture"] for r in per_angle)
+        t_io = sum(r["t_load"] for r in per_angle)
+        if t_io:
+            timings["load_raw"] = t_io
+        timings["reduce"] = sum(r["t_reduce"] for r in per_angle)
+        if raw is not None:
+            timings["save_raw_background"] = sum(r["t_write"] for r in per_angle)
+        timings["capture_reduce_wall"] = time.perf_counter() - t_start
+        plot_jobs = _plot_jobs(plan, outp, samples, None, pool)  # the map needs no fit
+        result, compare = _fit_all(plan, samples, truth_model, outp, timings, quiet, stream)
 
-    # ------------------------------------------------------------------ reduce
+        # -------------------------------------------------------------- report
+        summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
+        t = time.perf_counter()
+        plot_jobs += _plot_jobs(plan, outp, samples, result.model, pool)
+        for job in plot_jobs:
+            job.result()
+        if outp is not None and plan.plots:
+            summary["files"]["plots"] = [f"plots/{n}.png" for n in _PLOTS]
+        timings["plots"] = time.perf_counter() - t
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+    t = time.perf_counter()
+    if outp is not None:
+        fitd = result.to_dict()
+        fitd["compare"] = {
+            k: (v.to_dict() if not isinstance(v, Exception) else {"error": str(v)})
+            for k, v in compare.items()
+        }
+        _write_json(outp / "fit.json", fitd)
+        rad = _radiance(plan, info, result)
+        if rad is not None:
+            from gonio.radiance import write_material
+
+            write_material(outp / "material.rad", rad)
+            summary["files"]["radiance"] = "material.rad"
+    timings["report"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    summary["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
+    if outp is not None:
+        _write_json(outp / "summary.json", summary)
+    return CampaignResult(plan, outp, samples, result, compare, summary, timings)
+
+
+# ----------------------------------------------------------------------------- stages
+#: The campaign's plots (``OUT/plots/<name>.png``).
+_PLOTS = ("incidence_plane", "hemisphere", "residuals")
+
+#: What a pool process inherits from the parent (fork): the instrument and the truth model.
+_POOL_STATE: dict[str, Any] = {}
+
+
+def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
+    if workers is not None:
+        if not isinstance(workers, int | np.integer) or workers < 1:
+            raise ValueError(f"workers {workers!r}: expected a positive integer")
+        return int(workers) if instrument is None else 1
+    if instrument is not None or len(plan.theta_i_deg) < 8:
+        return 1
+    import multiprocessing as mp
+
+    if "fork" not in mp.get_all_start_methods():
+        return 1
+    return max(1, min(os.cpu_count() or 1, 4))
+
+
+def _start_pool(n: int, inst: Any, truth_model: Any, plots: bool) -> Any:
+    """A process pool forked from this process, so that the workers inherit the imported
+    modules, the instrument with its cached geometry and the truth model."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    if hasattr(inst, "prepare"):
+        inst.prepare()
+    # with the fork start method the initializer's arguments are inherited, not pickled
+    return ProcessPoolExecutor(
+        n, mp_context=mp.get_context("fork"), initializer=_init_worker,
+        initargs=(inst, truth_model, plots),
+    )  # fmt: skip
+
+
+def _init_worker(inst: Any, truth_model: Any, plots: bool) -> None:
+    _POOL_STATE.update(inst=inst, truth=truth_model)
+    if plots:  # matplotlib loads while the worker waits for its first task
+        import threading
+
+        threading.Thread(target=_import_matplotlib, daemon=True).start()
+
+
+def _import_matplotlib() -> None:
+    from matplotlib.backends import backend_agg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
+
+def _capture_and_reduce(
+    plan: Plan, raw: Path | None, resume: bool, truth_model: Any, inst: Any, pool: Any, *,
+    quiet: bool, stream: Any,
+) -> list[dict[str, Any]]:  # fmt: skip
+    """Every incidence angle captured (or loaded), saved and reduced; results in plan order."""
+    angles = plan.theta_i_deg
+    out: list[dict[str, Any] | None] = [None] * len(angles)
+    with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
+        if pool is None:
+            writer = _Writer() if raw is not None else None
+            try:
+                for k, th in enumerate(angles):
+                    out[k] = _incidence(plan, th, raw, resume, truth_model, inst, writer)
+                    bar.update(label=f"θi {th:g}°")
+            finally:
+                if writer is not None:  # finish what was captured, also on an error
+                    writer.wait()
+            for r in out:  # the one writer's time, booked on the first angle
+                r["t_write"] = 0.0
+            out[0]["t_write"] = writer.busy_s if writer is not None else 0.0
+        else:
+            from concurrent.futures import as_completed
+
+            futs = {pool.submit(_incidence_worker, plan, th, raw, resume): k
+                    for k, th in enumerate(angles)}  # fmt: skip
+            import gonio.fit  # noqa: F401  (scipy loads here while the workers capture)
+
+            for f in as_completed(futs):
+                k = futs[f]
+                out[k] = f.result()
+                bar.update(label=f"θi {angles[k]:g}°")
+    return out  # type: ignore[return-value]
+
+
+def _incidence_worker(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[str, Any]:
+    """:func:`_incidence` in a pool process, with its own background writer."""
+    inst, truth_model = _POOL_STATE["inst"], _POOL_STATE["truth"]
+    writer = _Writer() if raw is not None else None
+    try:
+        res = _incidence(plan, th, raw, resume, truth_model, inst, writer)
+    finally:
+        if writer is not None:
+            writer.wait()
+    res["t_write"] = writer.busy_s if writer is not None else 0.0
+    return res
+
+
+def _incidence(
+    plan: Plan, th: float, raw: Path | None, resume: bool, truth_model: Any, inst: Any,
+    writer: _Writer | None,
+) -> dict[str, Any]:  # fmt: skip
+    """One incidence angle: standard and background, the sample at every rotation, reduced."""
     from gonio.calibration.reduce import Capture, reduce_capture, reduce_selected
 
+    ti = math.radians(th)
+    res: dict[str, Any] = {"tables": [], "n_pixels": 0, "n_loaded": 0, "t_capture": 0.0,
+                           "t_load": 0.0, "t_reduce": 0.0}  # fmt: skip
+    groups: list[tuple[str, float | None]] = [(_fmt_key(th), None)]
+    groups += [(_fmt_key(th, rot), rot) for rot in plan.rotations_deg]
+    captured: dict[str, dict[str, Frames]] = {}
+    for key, rot in groups:
+        seed = capture_seed(plan.seed, key)
+        if rot is None:
+            shots = {
+                "standard": lambda s=seed: inst.shoot("standard", ti, 0.0, s),
+                "background": lambda s=seed: inst.shoot(None, ti, 0.0, s + 1),
+            }
+        else:
+            pr = math.radians(rot)
+            shots = {"measured": lambda pr=pr, s=seed: inst.shoot(truth_model, ti, pr, s)}
+        folder = raw / key if raw is not None else None
+        frames, loaded, tc, tio = _take_group(folder, shots, resume, seed, writer)
+        captured[key] = frames
+        res["n_loaded"] += loaded
+        res["t_capture"] += tc
+        res["t_load"] += tio
     t = time.perf_counter()
-    tables = []
-    n_pixels = 0
-    with Progress(
-        len(plan.theta_i_deg) * len(plan.rotations_deg), "reduce", quiet=quiet, stream=stream
-    ) as bar:
-        for th in plan.theta_i_deg:
-            ref = captured[_fmt_key(th)]
-            std, bg = Capture(ref["standard"]), Capture(ref["background"])
-            for rot in plan.rotations_deg:
-                meas = Capture(captured[_fmt_key(th, rot)]["measured"])
-                opts = dict(plan.thinning)
-                if plan.thinning_mode == "select":
-                    sel_seed = capture_seed(plan.seed, _fmt_key(th, rot) + "/select")
-                    res = reduce_selected(meas, std, bg, rng=sel_seed, **opts)
-                else:
-                    res = reduce_capture(meas, std, bg, thinning=opts)
-                tables.append(res.samples)
-                n_pixels += int(res.stats.get("n_before", len(res.samples)))
-                bar.update()
-    samples = BRDFSamples.concatenate(
-        tables,
-        metadata={
-            "material": plan.material,
-            "instrument": plan.instrument,
-            "mirror": plan.mirror,
-            "seed": plan.seed,
-        },
-    )
-    timings["reduce"] = time.perf_counter() - t
-    if writer is not None:  # raw frames were written in the background meanwhile
-        timings["save_raw_wait"] = writer.wait()
-        timings["save_raw_background"] = writer.busy_s
+    ref = captured[_fmt_key(th)]
+    std, bg = Capture(ref["standard"]), Capture(ref["background"])
+    for rot in plan.rotations_deg:
+        meas = Capture(captured[_fmt_key(th, rot)]["measured"])
+        opts = dict(plan.thinning)
+        if plan.thinning_mode == "select":
+            sel_seed = capture_seed(plan.seed, _fmt_key(th, rot) + "/select")
+            red = reduce_selected(meas, std, bg, rng=sel_seed, **opts)
+        else:
+            red = reduce_capture(meas, std, bg, thinning=opts)
+        res["tables"].append(red.samples)
+        res["n_pixels"] += int(red.stats.get("n_before", len(red.samples)))
+    res["t_reduce"] = time.perf_counter() - t
+    return res
+
+
+def _plot_jobs(plan: Plan, outp: Path | None, samples: BRDFSamples, model: Any, pool: Any):
+    """Draw (in this process) or start (in the pool) the plots: with ``model=None`` the
+    hemisphere map, which needs no fit, else the two that show the fitted model. Returns
+    the futures to wait for."""
+    if outp is None or not plan.plots:
+        return []
+    names = ("hemisphere",) if model is None else ("incidence_plane", "residuals")
+    title = f"{plan.material} ({plan.model})"
+    jobs = []
+    for name in names:
+        args = (name, samples, model, outp / "plots" / f"{name}.png", title)
+        if pool is None:
+            _draw(*args)
+        else:
+            jobs.append(pool.submit(_draw, *args))
+    return jobs
+
+
+def _draw(name: str, samples: BRDFSamples, model: Any, path: Path, title: str) -> None:
+    from gonio import plots
+
+    if name == "hemisphere":
+        plots.plot_hemisphere(samples, path, title=title)
+    elif name == "incidence_plane":
+        plots.plot_incidence_plane(samples, model, path, title=title)
+    else:
+        plots.plot_residuals(samples, model, path, title=title)
+
+
+def _fit_all(
+    plan: Plan, samples: BRDFSamples, truth_model: Any, outp: Path | None,
+    timings: dict[str, float], quiet: bool, stream: Any,
+) -> tuple[Any, dict[str, Any]]:  # fmt: skip
+    """The main fit and the compared models; ``samples.csv`` is written meanwhile."""
     # samples.csv is formatted on a thread while the fit runs
     from concurrent.futures import ThreadPoolExecutor
+
+    from gonio import fit as _fit
 
     csv_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gonio-samples")
     csv_job = csv_pool.submit(samples.write, outp / "samples.csv") if outp is not None else None
@@ -581,44 +758,7 @@ def run(
         csv_job.result()
     csv_pool.shutdown()
     timings["save_samples_wait"] = time.perf_counter() - t
-
-    # ------------------------------------------------------------------ report
-    summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
-    t = time.perf_counter()
-    if outp is not None and plan.plots:
-        from gonio import plots
-
-        title = f"{plan.material} ({plan.model})"
-        pdir = outp / "plots"
-        plots.plot_incidence_plane(samples, result.model, pdir / "incidence_plane.png", title=title)
-        plots.plot_hemisphere(samples, pdir / "hemisphere.png", title=title)
-        plots.plot_residuals(samples, result.model, pdir / "residuals.png", title=title)
-        summary["files"]["plots"] = [
-            "plots/incidence_plane.png",
-            "plots/hemisphere.png",
-            "plots/residuals.png",
-        ]
-    timings["plots"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if outp is not None:
-        fitd = result.to_dict()
-        fitd["compare"] = {
-            k: (v.to_dict() if not isinstance(v, Exception) else {"error": str(v)})
-            for k, v in compare.items()
-        }
-        _write_json(outp / "fit.json", fitd)
-        rad = _radiance(plan, info, result)
-        if rad is not None:
-            from gonio.radiance import write_material
-
-            write_material(outp / "material.rad", rad)
-            summary["files"]["radiance"] = "material.rad"
-    timings["report"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_start
-    summary["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
-    if outp is not None:
-        _write_json(outp / "summary.json", summary)
-    return CampaignResult(plan, outp, samples, result, compare, summary, timings)
+    return result, compare
 
 
 def _check_out(outp: Path, plan: Plan, resume: bool, truth: Any = None) -> None:

@@ -69,7 +69,16 @@ def add_arguments(parser) -> None:
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    parser.add_argument(
+        "--d-over-r", type=float, default=None, help="LBL dome D/R (default the instrument's)"
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars, no table")
     add_json_option(parser)
 
@@ -148,6 +157,7 @@ def run(args) -> int:
         seed=args.seed,
         residual=args.residual,
         plots=not args.no_plots,
+        d_over_r=args.d_over_r,
     )
     if args.angles is not None:
         kw["theta_i_deg"] = parse_angles(args.angles)
@@ -157,7 +167,7 @@ def run(args) -> int:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
     out = args.out or f"campaign_{args.material}_seed{args.seed}"
-    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet)
+    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
     if not args.quiet:
         print(campaign.summary_table(res.summary))
         print(f"results in {res.out}")
