@@ -508,16 +508,25 @@ _CELL_CACHE: dict[int, tuple[NDArray, dict[int, NDArray]]] = {}
 
 
 def _select(
-    sq: NDArray, proxy: NDArray, base_level: int, peak_level: int, peak_fraction: float,
-    gen: np.random.Generator,
+    sq: NDArray, num: NDArray, den: NDArray, base_level: int, peak_level: int,
+    peak_fraction: float, gen: np.random.Generator,
 ) -> NDArray[np.int64]:  # fmt: skip
-    """One random index per equal-area cell; finer cells inside peak base cells."""
+    """One random index per equal-area cell; finer cells inside peak base cells.
 
+    A base cell is in the peak when its ratio ``Σ num / Σ den`` (sample over standard
+    signal, summed over the cell's pixels: robust where single standard pixels are dark)
+    exceeds the median cell ratio (the diffuse level) by ``peak_fraction`` of the range up
+    to the largest.
+    """
     base = _cells(sq, base_level)
     nb = 1 << (2 * base_level)
-    cnt = np.bincount(base, minlength=nb)
-    mean = np.bincount(base, weights=proxy, minlength=nb) / np.maximum(cnt, 1)
-    peak = (mean > peak_fraction * mean.max())[base]
+    sn = np.bincount(base, weights=num, minlength=nb)
+    sd = np.bincount(base, weights=den, minlength=nb)
+    # cells whose standard signal is a small fraction of a typical cell's are not judged
+    ok = sd > 0.05 * np.median(sd[sd > 0]) if (sd > 0).any() else sd > 0
+    ratio = np.where(ok, sn / np.where(ok, sd, 1.0), 0.0)
+    floor = float(np.median(ratio[ok])) if ok.any() else 0.0  # the typical (diffuse) level
+    peak = (ratio > floor + peak_fraction * (ratio.max() - floor))[base]
     cell = np.where(peak, nb + _cells(sq, peak_level), base)
     key = gen.random(cell.size)
     best = np.full(nb + (1 << (2 * peak_level)), -1.0)
@@ -546,10 +555,10 @@ def reduce_selected(
     while the rest of the usable distribution is recorded at a uniform density". Here the
     hemisphere is cut into the equal-area cells of
     :func:`~gonio.calibration.thinning.hemisphere_to_square` — ``4^base_level`` cells, and
-    ``4^peak_level`` inside the base cells whose mean signal ratio (shortest exposures,
-    measured over standard, background removed) exceeds ``peak_fraction`` of the largest —
-    and one random pixel of each cell is reduced (merge, eq. 2) with its 8 neighbours, which
-    set its σ. Only ~1-4 % of the pixels are merged, and every sample is the unbiased
+    ``4^peak_level`` inside the peak's base cells (signal ratio of the shortest exposures,
+    sample over standard, background removed, above the median cell by ``peak_fraction``
+    of the range up to the largest) — and one random pixel of each cell is reduced (merge,
+    eq. 2) with its 8 neighbours, which set its σ. Only ~1-4 % of the pixels are merged, and every sample is the unbiased
     single-pixel eq. 2 value at its own direction: averaging pixels over a curved lobe
     (:func:`~gonio.calibration.thinning.thin`) widens fitted lobes, and σ evaluated at a
     pixel's own reading biases weighted fits low (rolled brass, 6 θi × 2 rotations, default
@@ -579,10 +588,9 @@ def reduce_selected(
     h, w = shape
     cand, wo_all, sq = _selection_geometry(wo_dome, gvalid, rotation)
     bg0 = _darkest_signal(background)[cand]
-    proxy = (_darkest_signal(measured)[cand] - bg0) / np.maximum(
-        _darkest_signal(standard)[cand] - bg0, 1e-300
-    )
-    pick = _select(sq, proxy, base_level, peak_level, peak_fraction, gen)
+    num = _darkest_signal(measured)[cand] - bg0
+    den = _darkest_signal(standard)[cand] - bg0
+    pick = _select(sq, num, den, base_level, peak_level, peak_fraction, gen)
     sel = cand[pick]
     t1 = time.perf_counter()
 
