@@ -558,8 +558,8 @@ def reduce_selected(
     ``4^peak_level`` inside the peak's base cells (signal ratio of the shortest exposures,
     sample over standard, background removed, above the median cell by ``peak_fraction``
     of the range up to the largest) — and one random pixel of each cell is reduced (merge,
-    eq. 2) with its 8 neighbours, which set its σ. Only ~1-4 % of the pixels are merged, and every sample is the unbiased
-    single-pixel eq. 2 value at its own direction: averaging pixels over a curved lobe
+    eq. 2) with its 8 neighbours, which set its σ. Only ~1-4 % of the pixels are merged,
+    and every sample is the unbiased single-pixel eq. 2 value at its own direction: averaging pixels over a curved lobe
     (:func:`~gonio.calibration.thinning.thin`) widens fitted lobes, and σ evaluated at a
     pixel's own reading biases weighted fits low (rolled brass, 6 θi × 2 rotations, default
     noise: averaging α +0.057 % = +7.5 s.e.; own-reading σ on all pixels ρd −0.36 % = −72
