@@ -556,14 +556,14 @@ def reduce_selected(
     hemisphere is cut into the equal-area cells of
     :func:`~gonio.calibration.thinning.hemisphere_to_square` — ``4^base_level`` cells, and
     ``4^peak_level`` inside the peak's base cells (signal ratio of the shortest exposures,
-    sample over standard, background removed, above the median cell by ``peak_fraction``
-    of the range up to the largest) — and one random pixel of each cell is reduced (merge,
-    eq. 2) with its 8 neighbours, which set its σ. Only ~1-4 % of the pixels are merged,
-    and every sample is the unbiased single-pixel eq. 2 value at its own direction: averaging pixels over a curved lobe
-    (:func:`~gonio.calibration.thinning.thin`) widens fitted lobes, and σ evaluated at a
+    sample over standard, background removed, above the median cell by ``peak_fraction`` of the
+    range up to the largest) — and one random pixel of each cell is reduced (merge, eq. 2) with
+    its 8 neighbours, which set its σ. Only ~1-4 % of the pixels are merged, and every sample is
+    the unbiased single-pixel eq. 2 value at its own direction: averaging pixels over a curved
+    lobe (:func:`~gonio.calibration.thinning.thin`) widens fitted lobes, and σ evaluated at a
     pixel's own reading biases weighted fits low (rolled brass, 6 θi × 2 rotations, default
-    noise: averaging α +0.057 % = +7.5 s.e.; own-reading σ on all pixels ρd −0.36 % = −72
-    s.e.; selection with neighbour σ: every parameter within 2.2 s.e.).
+    noise: averaging α +0.057 % = +7.5 s.e.; own-reading σ on all pixels ρd −0.36 % = −72 s.e.;
+    selection with neighbour σ: every parameter within 2.2 s.e.).
 
     Parameters are those of :func:`reduce_capture` (linear cameras only) plus the cell
     levels, ``peak_fraction`` and the selection ``rng``. ``pixels`` of the result hold the
