@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
 
+from gonio.drivers._retry import check_timeout
 from gonio.drivers.errors import DeviceDisconnected, DeviceError, DeviceTimeout
 from gonio.drivers.transport import (
     LineTransport,
@@ -106,9 +107,7 @@ class ESP300:
         retries: int = 2,
     ) -> None:
         self.transport = transport
-        self.timeout = float(timeout)
-        if self.timeout <= 0:
-            raise ValueError(f"timeout={timeout!r}: expected a positive number of seconds")
+        self.timeout = check_timeout(timeout)
         self.retries = int(retries)
         axes = dict(axes) if axes is not None else {"1": 1, "2": 2, "3": 3}
         for name, num in axes.items():
@@ -370,15 +369,19 @@ class ESP300Axis:
         self.ctl.command(self._c("SL", format_number(low)))
         self.ctl.command(self._c("SR", format_number(high)))
 
+    def _set_positive(self, name: str, code: str, value: float) -> None:
+        """Send ``code`` with ``value``, which must be > 0 (``name`` is for the error)."""
+        if not float(value) > 0:
+            raise ValueError(f"{name}={value!r}: expected > 0")
+        self.ctl.command(self._c(code, format_number(value)))
+
     @property
     def velocity(self) -> float:
         return self.ctl.query(self._c("VA?"), _parse_float)
 
     @velocity.setter
     def velocity(self, value: float) -> None:
-        if not float(value) > 0:
-            raise ValueError(f"velocity={value!r}: expected > 0")
-        self.ctl.command(self._c("VA", format_number(value)))
+        self._set_positive("velocity", "VA", value)
 
     @property
     def acceleration(self) -> float:
@@ -386,9 +389,7 @@ class ESP300Axis:
 
     @acceleration.setter
     def acceleration(self, value: float) -> None:
-        if not float(value) > 0:
-            raise ValueError(f"acceleration={value!r}: expected > 0")
-        self.ctl.command(self._c("AC", format_number(value)))
+        self._set_positive("acceleration", "AC", value)
 
     def identify(self) -> str:
         """``ID?``: stage model and serial number."""

@@ -25,7 +25,15 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numpy as np
-from gonio.drivers.errors import DeviceDisconnected, DeviceError, DeviceTimeout
+from gonio.drivers._retry import (
+    BadReply,
+    check_timeout,
+    clear_halts,
+    open_usb,
+    reconnect,
+    retry,
+)
+from gonio.drivers.errors import DeviceError, DeviceTimeout
 from gonio.drivers.ptpcodes import (
     CONTAINER_COMMAND,
     CONTAINER_DATA,
@@ -45,7 +53,6 @@ from gonio.drivers.transport import (
     TransportDisconnected,
     TransportStall,
     TransportTimeout,
-    UsbTransport,
     UsbTransportProtocol,
 )
 
@@ -104,9 +111,7 @@ class PTPCamera:
         open_session: bool = True,
     ) -> None:
         self.transport = transport
-        self.timeout = float(timeout)
-        if self.timeout <= 0:
-            raise ValueError(f"timeout={timeout!r}: expected a positive number of seconds")
+        self.timeout = check_timeout(timeout)
         self.retries = int(retries)
         self.session_id = int(session_id)
         self._tid = 0
@@ -117,11 +122,7 @@ class PTPCamera:
     @classmethod
     def open(cls, backend: Any = None, **kwargs: Any) -> PTPCamera:
         """The first still-image-class device on the (named or given) pyusb ``backend``."""
-        try:
-            t = UsbTransport(None, None, backend=backend, match=_is_still_image)
-        except TransportDisconnected as exc:
-            raise DeviceDisconnected(DEVICE, "find", None, str(exc)) from exc
-        return cls(t, **kwargs)
+        return cls(open_usb(DEVICE, None, None, backend, match=_is_still_image), **kwargs)
 
     # -- transport level --------------------------------------------------------------------
     @property
@@ -135,14 +136,14 @@ class PTPCamera:
     def _read_container(self, what: str) -> tuple[int, int, int, bytes]:
         first = self.transport.read(EP_IN, PACKET, self._tmo)
         if len(first) < 12:
-            raise _BadReply(first, f"{what}: runt container of {len(first)} bytes")
+            raise BadReply(first, f"{what}: runt container of {len(first)} bytes")
         length, ctype, code, tid = struct.unpack_from("<IHHI", first)
         if ctype not in (CONTAINER_DATA, CONTAINER_RESPONSE) or length < 12:
-            raise _BadReply(first[:12], f"{what}: bad container header")
+            raise BadReply(first[:12], f"{what}: bad container header")
         data = bytearray(first)
         while len(data) < length:
             if len(data) % PACKET:
-                raise _BadReply(
+                raise BadReply(
                     bytes(data[:12]), f"{what}: short packet after {len(data)} of {length} bytes"
                 )
             want = length - len(data)
@@ -152,7 +153,7 @@ class PTPCamera:
                 break
             data += chunk
         if len(data) != length:
-            raise _BadReply(bytes(data[:12]), f"{what}: {len(data)} bytes, header says {length}")
+            raise BadReply(bytes(data[:12]), f"{what}: {len(data)} bytes, header says {length}")
         if length % PACKET == 0 and length > 0:
             try:  # the zero-length packet that ends a transfer of whole packets
                 self.transport.read(EP_IN, PACKET, 50)
@@ -178,59 +179,39 @@ class PTPCamera:
         ctype, code, rtid, body = self._read_container(name)
         if ctype == CONTAINER_DATA:
             if code != op or rtid != tid:
-                raise _BadReply(
+                raise BadReply(
                     body[:8],
                     f"{name}: data for 0x{code:04X}/tid {rtid}, expected 0x{op:04X}/tid {tid}",
                 )
             payload = body
             ctype, code, rtid, body = self._read_container(name)
         if ctype != CONTAINER_RESPONSE or rtid != tid:
-            raise _BadReply(body[:8], f"{name}: expected the response to tid {tid}")
+            raise BadReply(body[:8], f"{name}: expected the response to tid {tid}")
         if code != RC["OK"]:
             raise PTPError(name, code)
         rparams = tuple(struct.unpack_from("<I", body, 4 * i)[0] for i in range(len(body) // 4))
         return payload, rparams
 
     def _recover(self) -> None:
-        try:
-            self.transport.reconnect()
-        except TransportDisconnected as exc:
-            raise DeviceDisconnected(DEVICE, "reconnect", None, str(exc)) from exc
+        reconnect(self.transport, DEVICE)
         was_open, self.session_open = self.session_open, False
         if was_open:
             self.open_session()
 
     def _retry(self, command: str, fn: Callable[[], T], idempotent: bool = True) -> T:
-        last: Exception | None = None
-        for _ in range(self.retries + 1 if idempotent else 1):
-            try:
-                return fn()
-            except TransportDisconnected as exc:
-                last = exc
-                self._recover()
-            except TransportStall as exc:
-                last = exc
-                self._clear_stall()
-            except TransportTimeout as exc:
-                last = exc
-                self._drain()
-            except _BadReply as exc:
-                last = exc
-                self._drain()
-        if isinstance(last, TransportTimeout):
-            raise DeviceTimeout(DEVICE, command, None, str(last)) from last
-        if isinstance(last, _BadReply):
-            raise DeviceError(DEVICE, command, last.reply, str(last)) from last
-        raise DeviceError(DEVICE, command, None, f"gave up: {last}") from last
+        return retry(
+            DEVICE,
+            command,
+            fn,
+            self.retries + 1 if idempotent else 1,
+            recover=self._recover,
+            clear_stall=self._clear_stall,
+            after_error=self._drain,
+        )
 
     def _clear_stall(self) -> None:
-        for ep in (EP_IN, EP_OUT):
-            try:
-                self.transport.clear_halt(ep)
-            except TransportDisconnected:
-                self._recover()
-                return
-        self._drain()
+        if clear_halts(self.transport, (EP_IN, EP_OUT), self._recover):
+            self._drain()
 
     def _drain(self) -> None:
         try:
@@ -404,10 +385,10 @@ class PTPCamera:
         """One event from the interrupt endpoint: ``(code, transaction id, params)``."""
         data = self.transport.read(EP_EVENT, 64, max(1, int(timeout * 1000)))
         if len(data) < 12:
-            raise _BadReply(data, "runt event container")
+            raise BadReply(data, "runt event container")
         length, ctype, code, tid = struct.unpack_from("<IHHI", data)
         if ctype != CONTAINER_EVENT or length != len(data):
-            raise _BadReply(data, "bad event container")
+            raise BadReply(data, "bad event container")
         params = tuple(
             struct.unpack_from("<I", data, 12 + 4 * i)[0] for i in range((len(data) - 12) // 4)
         )
@@ -442,7 +423,7 @@ class PTPCamera:
             except TransportDisconnected:
                 self._recover()
                 continue
-            except _BadReply:
+            except BadReply:
                 continue
             if code == EV["ObjectAdded"] and params:
                 handle = params[0]
@@ -478,9 +459,3 @@ class PTPCamera:
         except (DeviceError, TransportDisconnected, TransportTimeout, TransportStall):
             pass
         self.transport.close()
-
-
-class _BadReply(Exception):
-    def __init__(self, reply: bytes, message: str) -> None:
-        super().__init__(message)
-        self.reply = bytes(reply)

@@ -23,15 +23,36 @@ class ScriptError(AssertionError):
     """The driver did not follow the script."""
 
 
-class ScriptedLineTransport:
+class _Scripted:
+    """What both scripted transports share: the script, its position, reconnects, close."""
+
+    def __init__(self, script: Sequence[tuple]) -> None:
+        self.script = list(script)
+        self.pos = 0
+        self.reconnects = 0
+
+    def reconnect(self) -> None:
+        self.reconnects += 1
+
+    def close(self) -> None:
+        pass
+
+    def assert_done(self) -> None:
+        """Raise :class:`ScriptError` if scripted steps were left unplayed."""
+        if self.pos != len(self.script):
+            raise ScriptError(
+                f"{len(self.script) - self.pos} scripted steps left over: "
+                f"{self.script[self.pos :]!r}"
+            )
+
+
+class ScriptedLineTransport(_Scripted):
     """A line transport replaying ``[(expected_write, reply_or_None_or_exception), ...]``."""
 
     def __init__(self, script: Sequence[tuple[bytes, bytes | BaseException | None]]) -> None:
-        self.script = list(script)
-        self.pos = 0
+        super().__init__(script)
         self._pending = bytearray()
         self._exc: BaseException | None = None
-        self.reconnects = 0
         self.flushes = 0
 
     def write(self, data: bytes) -> None:
@@ -61,23 +82,13 @@ class ScriptedLineTransport:
         self.flushes += 1
         self._pending.clear()
 
-    def reconnect(self) -> None:
-        self.reconnects += 1
-
-    def close(self) -> None:
-        pass
-
     def assert_done(self) -> None:
-        if self.pos != len(self.script):
-            raise ScriptError(
-                f"{len(self.script) - self.pos} scripted steps left over: "
-                f"{self.script[self.pos :]!r}"
-            )
+        super().assert_done()
         if self._pending:
             raise ScriptError(f"unread reply bytes left over: {bytes(self._pending)!r}")
 
 
-class ScriptedUsbTransport:
+class ScriptedUsbTransport(_Scripted):
     """A USB transport replaying ``[("out", ep, bytes) | ("in", ep, bytes_or_exception), ...]``.
 
     ``"in"`` steps give what one ``read`` returns (a short packet ends the transfer, as on
@@ -85,9 +96,7 @@ class ScriptedUsbTransport:
     """
 
     def __init__(self, script: Sequence[tuple[str, int, object]]) -> None:
-        self.script = list(script)
-        self.pos = 0
-        self.reconnects = 0
+        super().__init__(script)
         self.halts_cleared: list[int] = []
 
     def _next(self, kind: str, ep: int) -> object:
@@ -118,16 +127,3 @@ class ScriptedUsbTransport:
 
     def clear_halt(self, ep: int) -> None:
         self.halts_cleared.append(ep)
-
-    def reconnect(self) -> None:
-        self.reconnects += 1
-
-    def close(self) -> None:
-        pass
-
-    def assert_done(self) -> None:
-        if self.pos != len(self.script):
-            raise ScriptError(
-                f"{len(self.script) - self.pos} scripted steps left over: "
-                f"{self.script[self.pos :]!r}"
-            )

@@ -44,6 +44,19 @@ class TransportStall(OSError):
     """A USB endpoint stalled (pipe error)."""
 
 
+def _reopen(open_: Callable[[], None], timeout: float) -> None:
+    """Call ``open_`` until it no longer raises TransportDisconnected, for ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            open_()
+            return
+        except TransportDisconnected:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.02)
+
+
 @runtime_checkable
 class LineTransport(Protocol):
     """What a line-oriented (RS-232 style) driver needs."""
@@ -148,15 +161,7 @@ class SerialTransport:
     def reconnect(self) -> None:
         """Close and reopen the port, trying until ``reconnect_timeout`` s have passed."""
         self.close()
-        deadline = time.monotonic() + self.reconnect_timeout
-        while True:
-            try:
-                self._open()
-                return
-            except TransportDisconnected:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.02)
+        _reopen(self._open, self.reconnect_timeout)
 
     def close(self) -> None:
         if self._port is not None:
@@ -256,25 +261,26 @@ class UsbTransport:
             raise _map_usb_error(exc, "set_configuration") from exc
         self.device = dev
 
-    def write(self, ep: int, data: bytes, timeout_ms: int) -> int:
+    def _call(self, what: str, fn: Callable[[Any], Any]) -> Any:
+        """``fn(device)``, with pyusb errors mapped to the transport exceptions."""
         import usb.core
 
         if self.device is None:
             raise TransportDisconnected("device closed")
         try:
-            return int(self.device.write(ep, data, timeout=int(timeout_ms)))
+            return fn(self.device)
         except usb.core.USBError as exc:
-            raise _map_usb_error(exc, f"write EP 0x{ep:02x}") from exc
+            raise _map_usb_error(exc, what) from exc
+
+    def write(self, ep: int, data: bytes, timeout_ms: int) -> int:
+        return int(
+            self._call(f"write EP 0x{ep:02x}", lambda d: d.write(ep, data, timeout=int(timeout_ms)))
+        )
 
     def read(self, ep: int, size: int, timeout_ms: int) -> bytes:
-        import usb.core
-
-        if self.device is None:
-            raise TransportDisconnected("device closed")
-        try:
-            return bytes(self.device.read(ep, size, timeout=int(timeout_ms)))
-        except usb.core.USBError as exc:
-            raise _map_usb_error(exc, f"read EP 0x{ep:02x}") from exc
+        return bytes(
+            self._call(f"read EP 0x{ep:02x}", lambda d: d.read(ep, size, timeout=int(timeout_ms)))
+        )
 
     def ctrl_transfer(
         self,
@@ -285,39 +291,20 @@ class UsbTransport:
         data_or_length: Any = None,
         timeout_ms: int = 1000,
     ) -> Any:
-        import usb.core
-
-        if self.device is None:
-            raise TransportDisconnected("device closed")
-        try:
-            return self.device.ctrl_transfer(
+        return self._call(
+            f"control request 0x{b_request:02x}",
+            lambda d: d.ctrl_transfer(
                 bm_request_type, b_request, w_value, w_index, data_or_length, timeout=timeout_ms
-            )
-        except usb.core.USBError as exc:
-            raise _map_usb_error(exc, f"control request 0x{b_request:02x}") from exc
+            ),
+        )
 
     def clear_halt(self, ep: int) -> None:
-        import usb.core
-
-        if self.device is None:
-            raise TransportDisconnected("device closed")
-        try:
-            self.device.clear_halt(ep)
-        except usb.core.USBError as exc:
-            raise _map_usb_error(exc, f"clear_halt EP 0x{ep:02x}") from exc
+        self._call(f"clear_halt EP 0x{ep:02x}", lambda d: d.clear_halt(ep))
 
     def reconnect(self) -> None:
         """Drop the handle and look for the device again until ``reconnect_timeout``."""
         self.close()
-        deadline = time.monotonic() + self.reconnect_timeout
-        while True:
-            try:
-                self._open()
-                return
-            except TransportDisconnected:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.02)
+        _reopen(self._open, self.reconnect_timeout)
 
     def close(self) -> None:
         if self.device is not None:

@@ -22,12 +22,12 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numpy as np
-from gonio.drivers.errors import DeviceDisconnected, DeviceError, DeviceTimeout
+from gonio.drivers._retry import BadReply, check_timeout, clear_halts, open_usb, reconnect, retry
+from gonio.drivers.errors import DeviceError
 from gonio.drivers.transport import (
     TransportDisconnected,
     TransportStall,
     TransportTimeout,
-    UsbTransport,
     UsbTransportProtocol,
 )
 
@@ -71,9 +71,7 @@ class USB2000Plus:
         n_pixels: int | None = N_PIXELS,
     ) -> None:
         self.transport = transport
-        self.timeout = float(timeout)
-        if self.timeout <= 0:
-            raise ValueError(f"timeout={timeout!r}: expected a positive number of seconds")
+        self.timeout = check_timeout(timeout)
         self.retries = int(retries)
         self._itime_us = 10_000  # power-up default
         self._wavelengths: np.ndarray | None = None
@@ -88,11 +86,7 @@ class USB2000Plus:
     @classmethod
     def open(cls, backend: Any = None, **kwargs: Any) -> USB2000Plus:
         """Find the first USB2000+ (optionally on a named or given pyusb ``backend``)."""
-        try:
-            t = UsbTransport(VENDOR, PRODUCT, backend=backend)
-        except TransportDisconnected as exc:
-            raise DeviceDisconnected(DEVICE, "find", None, str(exc)) from exc
-        return cls(t, **kwargs)
+        return cls(open_usb(DEVICE, VENDOR, PRODUCT, backend), **kwargs)
 
     # -- plumbing ---------------------------------------------------------------------------
     @property
@@ -101,38 +95,22 @@ class USB2000Plus:
 
     def _recover(self) -> None:
         """After a lost link: find the device again and restore its settings."""
-        try:
-            self.transport.reconnect()
-        except TransportDisconnected as exc:
-            raise DeviceDisconnected(DEVICE, "reconnect", None, str(exc)) from exc
+        reconnect(self.transport, DEVICE)
         self.transport.write(EP_OUT, b"\x01", self._tmo_ms)
         self.transport.write(EP_OUT, struct.pack("<BI", 0x02, self._itime_us), self._tmo_ms)
 
+    def _clear_stall(self) -> None:
+        clear_halts(self.transport, (EP_OUT, EP_IN_LOW, EP_IN_SPECTRUM), self._recover)
+
     def _retry(self, command: str, fn: Callable[[], T]) -> T:
-        last: Exception | None = None
-        for _ in range(self.retries + 1):
-            try:
-                return fn()
-            except TransportDisconnected as exc:
-                last = exc
-                self._recover()
-            except TransportStall as exc:
-                last = exc
-                for ep in (EP_OUT, EP_IN_LOW, EP_IN_SPECTRUM):
-                    try:
-                        self.transport.clear_halt(ep)
-                    except TransportDisconnected:
-                        self._recover()
-                        break
-            except TransportTimeout as exc:
-                last = exc
-            except _BadReply as exc:
-                last = exc
-        if isinstance(last, TransportTimeout):
-            raise DeviceTimeout(DEVICE, command, None, str(last)) from last
-        if isinstance(last, _BadReply):
-            raise DeviceError(DEVICE, command, last.reply, str(last)) from last
-        raise DeviceError(DEVICE, command, None, f"gave up: {last}") from last
+        return retry(
+            DEVICE,
+            command,
+            fn,
+            self.retries + 1,
+            recover=self._recover,
+            clear_stall=self._clear_stall,
+        )
 
     # -- commands ---------------------------------------------------------------------------
     def initialize(self) -> None:
@@ -167,11 +145,11 @@ class USB2000Plus:
             self.transport.write(EP_OUT, bytes([0x05, slot]), self._tmo_ms)
             r = self.transport.read(EP_IN_LOW, 64, self._tmo_ms)
             if len(r) != 17 or r[0] != 0x05 or r[1] != slot:
-                raise _BadReply(r, f"expected 17 bytes starting 05 {slot:02x}")
+                raise BadReply(r, f"expected 17 bytes starting 05 {slot:02x}")
             try:
                 return r[2:].split(b"\x00")[0].decode("ascii")
             except UnicodeDecodeError as exc:
-                raise _BadReply(r, "slot data is not ASCII") from exc
+                raise BadReply(r, "slot data is not ASCII") from exc
 
         return self._retry(f"0x05 query slot {slot}", once)
 
@@ -211,7 +189,7 @@ class USB2000Plus:
             self.transport.write(EP_OUT, b"\xfe", self._tmo_ms)
             r = self.transport.read(EP_IN_LOW, 64, self._tmo_ms)
             if len(r) != 16:
-                raise _BadReply(r, "expected 16 status bytes")
+                raise BadReply(r, "expected 16 status bytes")
             v = struct.unpack("<HLBBBBBBBBBB", r)
             return {
                 "pixels": v[0],
@@ -234,7 +212,7 @@ class USB2000Plus:
             self.transport.write(EP_OUT, b"\x6b\x04", self._tmo_ms)
             r = self.transport.read(EP_IN_LOW, 64, self._tmo_ms)
             if len(r) != 3 or r[0] != 0x04:
-                raise _BadReply(r, "expected 3 bytes starting 04")
+                raise BadReply(r, "expected 3 bytes starting 04")
             d = struct.unpack("<H", r[1:])[0]
             return (d >> 12) & 0xF, (d >> 4) & 0xFF, d & 0xF
 
@@ -260,7 +238,7 @@ class USB2000Plus:
                     break  # short packet: end of the transfer
             if len(data) != 2 * n + 1 or data[-1] != SYNC:
                 self._drain()
-                raise _BadReply(
+                raise BadReply(
                     data[-8:],
                     f"{len(data)} bytes, last {data[-1:]!r}: expected "
                     f"{2 * n + 1} bytes ending with sync byte 0x69",
@@ -282,9 +260,3 @@ class USB2000Plus:
 
     def close(self) -> None:
         self.transport.close()
-
-
-class _BadReply(Exception):
-    def __init__(self, reply: bytes, message: str) -> None:
-        super().__init__(message)
-        self.reply = bytes(reply)

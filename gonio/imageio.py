@@ -68,21 +68,13 @@ def _suffix(path: Path) -> str:
     return suf
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"metadata value of type {type(o).__name__} is not JSON serialisable")
-
-
 def _metadata_bytes(metadata: dict[str, Any]) -> bytes:
     if not isinstance(metadata, dict):
         raise ValueError(f"metadata must be a dict, got {type(metadata).__name__}")
+    from gonio.cli._common import to_json
+
     try:
-        text = json.dumps(metadata, indent=2, default=_json_default, allow_nan=False)
+        text = to_json(metadata)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"metadata is not JSON serialisable: {exc}") from None
     return (text + "\n").encode("utf-8")

@@ -43,6 +43,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gonio._validate import check_scalar
+
 __all__ = ["LENS_MODELS", "FisheyeLens", "make_lens"]
 
 #: valid values of :attr:`FisheyeLens.model`
@@ -70,16 +72,6 @@ def _pos_finite(value: Any, name: str) -> float:
         raise ValueError(f"{name} must be a number, got {value!r}") from None
     if not (math.isfinite(v) and v > 0.0):
         raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-    return v
-
-
-def _finite(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
     return v
 
 
@@ -129,7 +121,7 @@ class FisheyeLens:
         for name in ("fx", "fy"):
             object.__setattr__(self, name, _pos_finite(getattr(self, name), name))
         for name in ("cx", "cy", "skew"):
-            object.__setattr__(self, name, _finite(getattr(self, name), name))
+            object.__setattr__(self, name, check_scalar(getattr(self, name), name))
         for name in ("width", "height"):
             v = getattr(self, name)
             if not (isinstance(v, int | np.integer) and int(v) > 0):

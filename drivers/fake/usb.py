@@ -42,6 +42,19 @@ __all__ = [
 _counter = itertools.count(1)
 
 
+class _NoKernelDriver(usb.backend.IBackend):
+    """A pyusb backend whose devices never have a kernel driver bound (fakes need none)."""
+
+    def is_kernel_driver_active(self, dev_handle: Any, intf: int) -> bool:
+        return False
+
+    def detach_kernel_driver(self, dev_handle: Any, intf: int) -> None:
+        pass
+
+    def attach_kernel_driver(self, dev_handle: Any, intf: int) -> None:
+        pass
+
+
 class _Handle:
     def __init__(self, dev: FakeUsbDevice, generation: int) -> None:
         self.dev = dev
@@ -56,7 +69,7 @@ class _DevRef:
         self.generation = dev.generation
 
 
-class FakeUsbBackend(usb.backend.IBackend):
+class FakeUsbBackend(_NoKernelDriver):
     """pyusb backend over a list of :class:`FakeUsbDevice`."""
 
     def __init__(self, fakes: list[FakeUsbDevice]) -> None:
@@ -196,15 +209,6 @@ class FakeUsbBackend(usb.backend.IBackend):
         d._reset_queues()  # the configuration survives a port reset (the host restores it)
         d.on_reset()
         time.sleep(0.001)
-
-    def is_kernel_driver_active(self, dev_handle: _Handle, intf: int) -> bool:
-        return False
-
-    def detach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
-        pass
-
-    def attach_kernel_driver(self, dev_handle: _Handle, intf: int) -> None:
-        pass
 
 
 def install(bench: Bench | None = None, *, name: str | None = None) -> str:
@@ -433,7 +437,7 @@ class _Remote:
         raise RuntimeError(err["msg"])
 
 
-class RemoteUsbBackend(usb.backend.IBackend):
+class RemoteUsbBackend(_NoKernelDriver):
     """pyusb backend forwarding every call to a :class:`RemoteServer`."""
 
     def __init__(self, address: str) -> None:
@@ -546,15 +550,6 @@ class RemoteUsbBackend(usb.backend.IBackend):
 
     def reset_device(self, h: Any) -> None:
         self.remote.call("reset_device", h.key)
-
-    def is_kernel_driver_active(self, h: Any, intf: int) -> bool:
-        return False
-
-    def detach_kernel_driver(self, h: Any, intf: int) -> None:
-        pass
-
-    def attach_kernel_driver(self, h: Any, intf: int) -> None:
-        pass
 
 
 def connect(address: str, *, name: str | None = None) -> str:

@@ -270,32 +270,28 @@ class FakeUsbDevice(abc.ABC):
     def on_out(self, ep: int, data: bytes) -> None:
         """Firmware: handle one OUT transfer."""
 
-    def _fault_common(self, timeout_ms: int) -> None:
+    def _fault_transfer(self, ep: int, timeout_ms: int) -> None:
+        """The faults a bulk transfer on ``ep`` may meet: unplugged, timeout, halted/stall."""
         if not self.present:
             raise usb_error("nodev")
         if self.faults.take("usb_timeouts"):
             time.sleep(max(timeout_ms, 1) / 1000.0)
             raise usb_error("timeout")
-
-    def bulk_out(self, ep: int, data: bytes, timeout_ms: int) -> int:
-        self._fault_common(timeout_ms)
         if ep in self._halted:
             raise usb_error("pipe")
         if self.faults.take("usb_pipe_errors"):
             self._halted.add(ep)
             raise usb_error("pipe")
+
+    def bulk_out(self, ep: int, data: bytes, timeout_ms: int) -> int:
+        self._fault_transfer(ep, timeout_ms)
         data = self.faults.filter_command(bytes(data))
         self.on_out(ep, data)
         return len(data)
 
     def bulk_in(self, ep: int, size: int, timeout_ms: int) -> bytes:
         """Collect packets until ``size`` bytes, a short packet, or the timeout."""
-        self._fault_common(timeout_ms)
-        if ep in self._halted:
-            raise usb_error("pipe")
-        if self.faults.take("usb_pipe_errors"):
-            self._halted.add(ep)
-            raise usb_error("pipe")
+        self._fault_transfer(ep, timeout_ms)
         mp = self.endpoints[ep].max_packet
         deadline = None if timeout_ms == 0 else time.monotonic() + timeout_ms / 1000.0
         out = bytearray()

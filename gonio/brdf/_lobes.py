@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from functools import cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -261,6 +262,43 @@ def half_vector_albedo(
     if vals.ndim == 3:
         return np.einsum("apb,ap->b", vals, w)
     return np.einsum("ap,ap->", vals, w)
+
+
+def refine_nodes(
+    estimate: Callable[[int], Any], rtol: float, max_level: int, nodes: int = 16
+) -> Any:
+    """``estimate(nodes)`` with ``nodes`` doubled until two levels agree, at most ``max_level``.
+
+    Two successive estimates agree when the largest absolute difference is at most ``rtol``
+    times the largest absolute value of the newer one, or at most 1e-14; the newer one is
+    returned (the last one when ``max_level`` levels do not converge).
+    """
+    prev = None
+    for _ in range(max_level):
+        est = estimate(nodes)
+        if prev is not None:
+            diff = np.max(np.abs(est - prev))
+            if diff <= rtol * np.max(np.abs(est)) or diff <= 1e-14:
+                return est
+        prev, nodes = est, 2 * nodes
+    return est
+
+
+def half_vector_sum(
+    wi: NDArray, wo: NDArray
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """``(cos θ_i, cos θ_o, up, h_x, h_y, h_z)`` of the unnormalised half vector ``wi + wo``.
+
+    ``up`` marks pairs with both directions above the horizon; ``h_z`` is 1 elsewhere (so it
+    can divide safely).
+    """
+    ci = wi[..., 2]
+    co = wo[..., 2]
+    up = (ci > 0.0) & (co > 0.0)
+    hx = wi[..., 0] + wo[..., 0]
+    hy = wi[..., 1] + wo[..., 1]
+    hz = np.where(up, ci + co, 1.0)
+    return ci, co, up, hx, hy, hz
 
 
 # --------------------------------------------------------------------------- sampling

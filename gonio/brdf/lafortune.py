@@ -23,6 +23,7 @@ from gonio.brdf._lobes import (
     cosine_lobe_albedo,
     cosine_lobe_pdf,
     lobe_quadrature_albedo,
+    refine_nodes,
     sample_cosine_lobe,
 )
 from gonio.brdf.base import BRDF, Param, register
@@ -170,21 +171,19 @@ class Lafortune(BRDF):
             if s == 0.0:
                 continue
             one = Lafortune(lobes=[(*c, n, p)])
-            prev, nodes = None, 16
-            for _ in range(max_level):
-                est = float(
+            total += refine_nodes(
+                lambda nodes, w=wi, m=one, a=mu / s, n=n: float(
                     lobe_quadrature_albedo(
-                        lambda v, w=wi, m=one: m._eval(np.broadcast_to(w, v.shape), v),
-                        mu / s,
+                        lambda v: m._eval(np.broadcast_to(w, v.shape), v),
+                        a,
                         n,
-                        float(wi[2]),
+                        float(w[2]),
                         nodes,
                     )
-                )
-                if prev is not None and abs(est - prev) <= max(rtol * abs(est), 1e-14):
-                    break
-                prev, nodes = est, 2 * nodes
-            total += est
+                ),
+                rtol,
+                max_level,
+            )
         return total
 
     # ------------------------------------------------------------------ mirror (eq. 7)

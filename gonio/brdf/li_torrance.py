@@ -50,13 +50,13 @@ Reflection Model", 2005): eq. 2-14 (model), eq. 16-18 (constructed models of §5
 from __future__ import annotations
 
 import math
-import os
 from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gonio._validate import as_directions
+from gonio.brdf._jit import lazy_kernel
 from gonio.brdf.base import BRDF, Param, hemisphere_integral, register
 
 __all__ = [
@@ -265,22 +265,8 @@ def _k_li_torrance(wi, wo, out, kdd, kudf, kuds, kfs, f0, lam_um, sigma, tau_x, 
                     out[k, b] += kfs[b] / pi * tt * ang
 
 
-_KERNEL: list[Any] = []
-
-
-def _kernel() -> Any:
-    """The compiled kernel, or ``None`` (numba missing or ``GONIO_NO_NUMBA`` set)."""
-    if not _KERNEL:
-        k = None
-        if not os.environ.get("GONIO_NO_NUMBA"):
-            try:
-                import numba
-
-                k = numba.njit(cache=True, fastmath=False, nogil=True)(_k_li_torrance)
-            except ImportError:  # pragma: no cover - numba is a declared dependency
-                k = None
-        _KERNEL.append(k)
-    return _KERNEL[0]
+#: the compiled kernel, or ``None`` (numba missing or ``GONIO_NO_NUMBA`` set)
+_kernel = lazy_kernel(_k_li_torrance)
 
 
 # --------------------------------------------------------------------------- model

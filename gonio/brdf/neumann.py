@@ -31,7 +31,9 @@ from gonio.brdf._lobes import (
     cosine_lobe_pdf,
     fresnel,
     half_vector_albedo,
+    half_vector_sum,
     lobe_quadrature_albedo,
+    refine_nodes,
     sample_cosine_lobe,
 )
 from gonio.brdf.base import BRDF, Param, register
@@ -195,22 +197,20 @@ class _PhongLobe(BRDF):
             return np.zeros(bands) if bands else 0.0
         axis = wi if self.RETRO else _mirror(wi)
         # the lobe frame covers only the lobe's half-space: integrate the lobe, add diffuse
-        prev = None
-        nodes = 16
-        for _ in range(max_level):
-            est = lobe_quadrature_albedo(
-                lambda v, w=wi: self._eval_parts(np.broadcast_to(w, v.shape), v, False),
-                axis,
-                self._n,
-                float(wi[2]),
-                nodes,
-            ) + np.asarray(self._diffuse_albedo())
-            if prev is not None:
-                diff = np.max(np.abs(est - prev))
-                if diff <= rtol * np.max(np.abs(est)) or diff <= 1e-14:
-                    return est
-            prev, nodes = est, 2 * nodes
-        return est
+        return refine_nodes(
+            lambda nodes: (
+                lobe_quadrature_albedo(
+                    lambda v, w=wi: self._eval_parts(np.broadcast_to(w, v.shape), v, False),
+                    axis,
+                    self._n,
+                    float(wi[2]),
+                    nodes,
+                )
+                + np.asarray(self._diffuse_albedo())
+            ),
+            rtol,
+            max_level,
+        )
 
     # -- sampling (Neumann §4, eq. 19-22)
     def _lobe_weight(self) -> float:
@@ -550,16 +550,11 @@ class _HalfLobe(BRDF):
         if wi[2] <= 0.0:
             return 0.0
         width, tan_map = self._width()
-        prev = None
-        nodes = 16
-        for _ in range(max_level):
-            est = half_vector_albedo(self._eval, wi, width, tan_map, nodes)
-            if prev is not None:
-                diff = abs(float(est) - float(prev))
-                if diff <= rtol * abs(float(est)) or diff <= 1e-14:
-                    return float(est)
-            prev, nodes = est, 2 * nodes
-        return float(est)
+        return float(
+            refine_nodes(
+                lambda n: half_vector_albedo(self._eval, wi, width, tan_map, n), rtol, max_level
+            )
+        )
 
 
 class _Blinn(_HalfLobe):
@@ -732,12 +727,7 @@ class WardNeumann(Ward):
     _KERNEL = "ward_neumann"
 
     def _eval_numpy(self, wi: NDArray, wo: NDArray) -> NDArray:
-        ci = wi[..., 2]
-        co = wo[..., 2]
-        up = (ci > 0.0) & (co > 0.0)
-        hx = wi[..., 0] + wo[..., 0]
-        hy = wi[..., 1] + wo[..., 1]
-        hz = np.where(up, ci + co, 1.0)
+        ci, co, up, hx, hy, hz = half_vector_sum(wi, wo)
         cm = np.where(up, np.maximum(ci, co), 1.0)
         spec = self._ks * np.exp(-self._exponent(hx, hy, hz)) / cm
         return np.where(up, self._kd + spec, 0.0)

@@ -50,12 +50,13 @@ References
 from __future__ import annotations
 
 import math
-import os
 from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from gonio.brdf._jit import lazy_kernel
+from gonio.brdf._lobes import half_vector_sum
 from gonio.brdf.base import BRDF, Param, register
 
 __all__ = [
@@ -403,22 +404,8 @@ def _k_on_numeric(wi, wo, u, w, sigma, hcoef, out_d, out_i):  # pragma: no cover
             out_i[k] = 0.0
 
 
-_NUMERIC_KERNEL: list = []
-
-
-def _numeric_kernel():
-    """The compiled kernel, or ``None`` (numba missing or ``GONIO_NO_NUMBA`` set)."""
-    if not _NUMERIC_KERNEL:
-        k = None
-        if not os.environ.get("GONIO_NO_NUMBA"):
-            try:
-                import numba
-
-                k = numba.njit(cache=True, fastmath=False, nogil=True)(_k_on_numeric)
-            except ImportError:  # pragma: no cover - numba is a declared dependency
-                k = None
-        _NUMERIC_KERNEL.append(k)
-    return _NUMERIC_KERNEL[0]
+#: the compiled kernel, or ``None`` (numba missing or ``GONIO_NO_NUMBA`` set)
+_numeric_kernel = lazy_kernel(_k_on_numeric)
 
 
 def _gauss_nodes(n: int):
@@ -664,12 +651,7 @@ class TorranceSparrow(BRDF):
         self._ks = p["k_s"]
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
-        ci = wi[..., 2]
-        co = wo[..., 2]
-        up = (ci > 0.0) & (co > 0.0)
-        hx = wi[..., 0] + wo[..., 0]
-        hy = wi[..., 1] + wo[..., 1]
-        hz = np.where(up, ci + co, 1.0)
+        ci, co, up, hx, hy, hz = half_vector_sum(wi, wo)
         rxy = np.hypot(hx, hy)
         hn = np.hypot(rxy, hz)
         th_a = np.arctan2(rxy, hz)

@@ -18,7 +18,6 @@ convenient approximation"), eq. 7 (sampling).
 from __future__ import annotations
 
 import math
-import os
 import threading
 from collections.abc import Callable
 from typing import Any, ClassVar
@@ -27,7 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gonio._validate import as_directions
-from gonio.brdf._lobes import half_vector_albedo
+from gonio.brdf._jit import njit_or_none
+from gonio.brdf._lobes import half_vector_albedo, half_vector_sum, refine_nodes
 from gonio.brdf.base import BRDF, Param, register
 from gonio.geometry import cosine_hemisphere_pdf, square_to_hemisphere
 
@@ -50,11 +50,19 @@ _WARD_ISSUES = ("albedo diverges at grazing incidence (001_84a7b2661ce0a5d4.txt 
 #         cos θ_o), or / max(cos θ_i, cos θ_o) for Neumann eq. 35), s = −1 below the horizon;
 #   numpy.exp(e, out=e);
 #   post: out = ρ_d/π + s·e, or 0 where s < 0.
-# The loops are branch-free (selects) so LLVM can vectorise them. ``pre`` returns the number
-# of rows holding a non-finite entry (x − x ≠ 0 for NaN and ±inf).
+# The loops are branch-free (selects; the ``mode`` tests are loop-invariant) so LLVM can
+# vectorise them. ``pre`` returns the number of rows holding a non-finite entry (x − x ≠ 0 for
+# NaN and ±inf).
 
 
-def _k_pre_ward5a(wi, wo, e_out, s_out, ks, ax2, ay2):  # pragma: no cover - numba
+#: ``mode`` argument of :func:`_k_pre` for each model (its ``_KERNEL`` name)
+_PRE_MODES: dict[str, int] = {"ward": 0, "ward_approx": 1, "ward_neumann": 2}
+
+
+def _k_pre(wi, wo, e_out, s_out, ks, ax2, ay2, mode):  # pragma: no cover - numba
+    # mode 0: eq. 5a; 1: eq. 5b; 2: Neumann eq. 35 (eq. 5a exponent, ks / max(cos θ_i, cos θ_o)).
+    # One kernel for the three costs nothing against three copies (measured: the same ns/eval
+    # within noise, bit-identical values).
     bad = 0
     for k in range(e_out.shape[0]):
         ix = wi[k, 0]
@@ -68,51 +76,19 @@ def _k_pre_ward5a(wi, wo, e_out, s_out, ks, ax2, ay2):  # pragma: no cover - num
         hx = ix + ox
         hy = iy + oy
         hz = ci + co if up else 1.0
-        cc = ci * co if up else 1.0
-        e_out[k] = -((hx * hx * ax2 + hy * hy * ay2) / (hz * hz))
-        s_out[k] = ks / math.sqrt(cc) if up else -1.0
-    return bad
-
-
-def _k_pre_ward5b(wi, wo, e_out, s_out, ks, ax2, ay2):  # pragma: no cover - numba
-    bad = 0
-    for k in range(e_out.shape[0]):
-        ix = wi[k, 0]
-        iy = wi[k, 1]
-        ci = wi[k, 2]
-        ox = wo[k, 0]
-        oy = wo[k, 1]
-        co = wo[k, 2]
-        bad += ((ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co)) != 0.0
-        up = (ci > 0.0) & (co > 0.0)
-        hx = ix + ox
-        hy = iy + oy
-        hz = ci + co if up else 1.0
-        cc = ci * co if up else 1.0
-        n2 = hx * hx + hy * hy + hz * hz
-        n = math.sqrt(n2)
-        e_out[k] = -(2.0 * (hx * hx * ax2 + hy * hy * ay2) / (n2 * (1.0 + hz / n)))
-        s_out[k] = ks / math.sqrt(cc) if up else -1.0
-    return bad
-
-
-def _k_pre_ward_neumann(wi, wo, e_out, s_out, ks, ax2, ay2):  # pragma: no cover - numba
-    bad = 0
-    for k in range(e_out.shape[0]):
-        ix = wi[k, 0]
-        iy = wi[k, 1]
-        ci = wi[k, 2]
-        ox = wo[k, 0]
-        oy = wo[k, 1]
-        co = wo[k, 2]
-        bad += ((ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co)) != 0.0
-        up = (ci > 0.0) & (co > 0.0)
-        hx = ix + ox
-        hy = iy + oy
-        hz = ci + co if up else 1.0
-        cm = max(ci, co) if up else 1.0
-        e_out[k] = -((hx * hx * ax2 + hy * hy * ay2) / (hz * hz))
-        s_out[k] = ks / cm if up else -1.0
+        q = hx * hx * ax2 + hy * hy * ay2
+        if mode == 1:
+            n2 = hx * hx + hy * hy + hz * hz
+            n = math.sqrt(n2)
+            e_out[k] = -(2.0 * q / (n2 * (1.0 + hz / n)))
+        else:
+            e_out[k] = -(q / (hz * hz))
+        if mode == 2:
+            cm = max(ci, co) if up else 1.0
+            s_out[k] = ks / cm if up else -1.0
+        else:
+            cc = ci * co if up else 1.0
+            s_out[k] = ks / math.sqrt(cc) if up else -1.0
     return bad
 
 
@@ -122,12 +98,7 @@ def _k_post(e, s_out, kd):  # pragma: no cover - numba
         s_out[k] = kd + sk * e[k] if sk >= 0.0 else 0.0
 
 
-_KERNEL_SOURCES: dict[str, Callable] = {
-    "ward": _k_pre_ward5a,
-    "ward_approx": _k_pre_ward5b,
-    "ward_neumann": _k_pre_ward_neumann,
-    "post": _k_post,
-}
+_KERNEL_SOURCES: dict[str, Callable] = {"pre": _k_pre, "post": _k_post}
 _KERNELS: dict[str, Any] = {}
 _SCRATCH = threading.local()
 
@@ -144,19 +115,16 @@ def _scratch(n: int) -> NDArray[np.float64]:
 def kernel(name: str) -> Any:
     """The compiled numba kernel ``name`` or ``None`` (numba missing or ``GONIO_NO_NUMBA``).
 
-    Compilation is lazy: importing :mod:`gonio.brdf` does not import numba.
+    ``name`` is ``"pre"``, ``"post"`` or a model name of :data:`_PRE_MODES` (``"ward"``,
+    ``"ward_approx"``, ``"ward_neumann"``), which all give the one ``pre`` kernel; it takes
+    the model's mode, ``_PRE_MODES[name]``, as its last argument. Compilation is lazy:
+    importing :mod:`gonio.brdf` does not import numba.
     """
-    if name in _KERNELS:
-        return _KERNELS[name]
-    k = None
-    if not os.environ.get("GONIO_NO_NUMBA") and name in _KERNEL_SOURCES:
-        try:
-            import numba
-        except ImportError:  # pragma: no cover - numba is a declared dependency
-            numba = None
-        if numba is not None:
-            k = numba.njit(cache=True, fastmath=False, nogil=True)(_KERNEL_SOURCES[name])
-    _KERNELS[name] = k
+    key = "pre" if name in _PRE_MODES else name
+    if key in _KERNELS:
+        return _KERNELS[key]
+    k = njit_or_none(_KERNEL_SOURCES[key]) if key in _KERNEL_SOURCES else None
+    _KERNELS[key] = k
     return k
 
 
@@ -261,12 +229,7 @@ class Ward(BRDF):
 
     def _eval_numpy(self, wi: NDArray, wo: NDArray) -> NDArray:
         """Reference numpy evaluation of eq. 5a."""
-        ci = wi[..., 2]
-        co = wo[..., 2]
-        up = (ci > 0.0) & (co > 0.0)
-        hx = wi[..., 0] + wo[..., 0]
-        hy = wi[..., 1] + wo[..., 1]
-        hz = np.where(up, ci + co, 1.0)
+        ci, co, up, hx, hy, hz = half_vector_sum(wi, wo)
         cc = np.where(up, ci * co, 1.0)
         spec = self._ks * np.exp(-self._exponent(hx, hy, hz)) / np.sqrt(cc)
         return np.where(up, self._kd + spec, 0.0)
@@ -294,14 +257,14 @@ class Ward(BRDF):
             wi = np.broadcast_to(wi, wo.shape)
         else:
             return None
-        k = kernel(self._KERNEL) if self._KERNEL else None
+        k = kernel("pre") if self._KERNEL else None
         post = kernel("post")
         if k is None or post is None:
             return None
         n = wi.shape[0]
         out = np.empty(n, dtype=np.float64)
         e = _scratch(n)
-        bad = k(wi, wo, e, out, self._ks, self._ax2, self._ay2)
+        bad = k(wi, wo, e, out, self._ks, self._ax2, self._ay2, _PRE_MODES[self._KERNEL])
         np.exp(e, out=e)
         post(e, out, self._kd)
         return out.reshape(shape), bad
@@ -327,16 +290,11 @@ class Ward(BRDF):
             return 0.0
         p = self._params
         width = min(p["alpha_x"], p["alpha_y"])
-        prev = None
-        nodes = 16
-        for _ in range(max_level):
-            est = half_vector_albedo(self._eval_numpy, wi, width, True, nodes)
-            if prev is not None:
-                diff = abs(float(est) - float(prev))
-                if diff <= rtol * abs(float(est)) or diff <= 1e-14:
-                    return float(est)
-            prev, nodes = est, 2 * nodes
-        return float(est)
+        return float(
+            refine_nodes(
+                lambda n: half_vector_albedo(self._eval_numpy, wi, width, True, n), rtol, max_level
+            )
+        )
 
     # -- sampling, eq. 7
     def _weights(self) -> tuple[float, float]:

@@ -18,7 +18,7 @@ def _default(o: Any) -> Any:
         return o.item()
     if isinstance(o, Path):
         return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+    raise TypeError(f"value of type {type(o).__name__} is not JSON serialisable")
 
 
 def to_json(obj: Any) -> str:

@@ -1,0 +1,39 @@
+"""Lazy numba compilation of the BRDF kernels.
+
+Kernels are written as plain-Python functions; they are compiled on first use (importing
+:mod:`gonio.brdf` does not import numba) with ``numba.njit(cache=True, fastmath=False,
+nogil=True)``. With numba missing or the environment variable ``GONIO_NO_NUMBA`` set, no kernel
+is compiled and the models use their numpy paths.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["lazy_kernel", "njit_or_none"]
+
+
+def njit_or_none(fn: Callable) -> Any:
+    """``fn`` compiled by numba, or ``None`` (numba missing or ``GONIO_NO_NUMBA`` set)."""
+    if os.environ.get("GONIO_NO_NUMBA"):
+        return None
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a declared dependency
+        return None
+    return numba.njit(cache=True, fastmath=False, nogil=True)(fn)
+
+
+def lazy_kernel(fn: Callable) -> Callable[[], Any]:
+    """A function returning :func:`njit_or_none` of ``fn``, decided on its first call."""
+    compiled: list[Any] = []
+
+    def get() -> Any:
+        if not compiled:
+            compiled.append(njit_or_none(fn))
+        return compiled[0]
+
+    get.__doc__ = f"The compiled ``{fn.__name__}``, or ``None`` (see :func:`njit_or_none`)."
+    return get
