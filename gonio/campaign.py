@@ -346,7 +346,7 @@ def _save_frames(folder: Path, kind: str, frames: Frames) -> list[str]:
     names = []
     for k, (img, meta) in enumerate(frames):
         name = f"{kind}_{k:02d}{_RAW_SUFFIX}"
-        write_image(folder / name, img, meta)
+        write_image(folder / name, img, meta, compress=False)  # raw frames: speed over size
         names.append(name)
     return names
 

@@ -35,6 +35,17 @@ def test_round_trip(tmp_path, suffix, dtype, shape):
     assert sidecar_path(path).name == f"img{suffix}.json"
 
 
+@pytest.mark.parametrize("suffix", [".tif", ".png"])
+def test_uncompressed_round_trip(tmp_path, suffix):
+    img = np.random.default_rng(1).integers(0, 65535, size=(48, 64)).astype(np.uint16)
+    a = write_image(tmp_path / f"a{suffix}", img, {"k": 1}, compress=False)
+    b = write_image(tmp_path / f"b{suffix}", np.zeros_like(img), {"k": 1})
+    back, meta = read_image(a)
+    assert np.array_equal(back, img) and meta == {"k": 1}
+    assert a.stat().st_size >= img.nbytes  # stored as is
+    assert b.stat().st_size < img.nbytes / 10  # a flat image compresses by default
+
+
 def test_rgb_channel_order(tmp_path):
     img = np.zeros((2, 2, 3), np.uint16)
     img[..., 0] = 1000  # red
