@@ -516,7 +516,7 @@ def _select(
     A base cell is in the peak when its ratio ``Σ num / Σ den`` (sample over standard
     signal, summed over the cell's pixels: robust where single standard pixels are dark)
     exceeds the median cell ratio (the diffuse level) by ``peak_fraction`` of the range up
-    to the largest.
+    to the largest; a sample whose largest cell is not twice the median has no peak.
     """
     base = _cells(sq, base_level)
     nb = 1 << (2 * base_level)
@@ -526,7 +526,11 @@ def _select(
     ok = sd > 0.05 * np.median(sd[sd > 0]) if (sd > 0).any() else sd > 0
     ratio = np.where(ok, sn / np.where(ok, sd, 1.0), 0.0)
     floor = float(np.median(ratio[ok])) if ok.any() else 0.0  # the typical (diffuse) level
-    peak = (ratio > floor + peak_fraction * (ratio.max() - floor))[base]
+    top = float(ratio.max())
+    if top > 2.0 * floor:  # a peak at least twice the diffuse level
+        peak = (ratio > floor + peak_fraction * (top - floor))[base]
+    else:  # no peak (a matte sample): a uniform density everywhere
+        peak = np.zeros(base.size, dtype=bool)
     cell = np.where(peak, nb + _cells(sq, peak_level), base)
     key = gen.random(cell.size)
     best = np.full(nb + (1 << (2 * peak_level)), -1.0)
@@ -638,8 +642,10 @@ def reduce_selected(
     keep = refl.mask[0]
     if not keep.any():
         raise ValueError(
-            "no selected pixel survived eq. 2 masking: every standard pixel is saturated or "
-            "not significantly above the background — check exposures"
+            f"no selected pixel survived eq. 2 masking (θi {math.degrees(theta_i):.2f}°, "
+            f"φi {math.degrees(phi_i):.2f}°, rotation {math.degrees(rotation):.2f}°, "
+            f"{sel.size} selected): every standard pixel is saturated or not significantly "
+            "above the background — check exposures"
         )
     wo = wo_all[pick][keep]
     value = refl.value[0][keep]

@@ -56,6 +56,9 @@ __all__ = [
 #: Ward's 21 incidence angles, 0° to 80° in 4° steps.
 DEFAULT_ANGLES_DEG: tuple[float, ...] = tuple(float(x) for x in np.linspace(0.0, 80.0, 21))
 
+#: Models with separate x and y coefficients that φi = 0 alone cannot separate.
+_XY_MODELS = frozenset({"lafortune"})
+
 #: Thinning modes and their default options (Plan.thinning).
 _THINNING: dict[str, dict[str, float]] = {
     "select": {"base_level": 5, "peak_level": 8, "peak_fraction": 0.1},
@@ -87,7 +90,9 @@ class Plan:
         Incidence angles in degrees.
     rotations_deg : sequence of float, optional
         Sample rotations about the normal (the incidence azimuth φi in the sample frame);
-        default ``(0, 90)`` for an anisotropic truth (α_x ≠ α_y), ``(0,)`` otherwise.
+        default ``(0, 90)`` for an anisotropic truth (α_x ≠ α_y) or a fitted model whose
+        x and y coefficients only a second rotation separates (Lafortune's C_x, C_y),
+        ``(0,)`` otherwise.
     exposures_s : sequence of float, optional
         Fixed exposure bracket; default the instrument's automatic bracket.
     noise : float
@@ -161,7 +166,10 @@ class Plan:
         if rot is None:
             p = info["params"]
             aniso = "alpha_x" in p and "alpha_y" in p and p["alpha_x"] != p["alpha_y"]
-            rot = (0.0, 90.0) if aniso else (0.0,)
+            # a Lafortune lobe's C_y multiplies y_i·y_o, which is 0 whenever φi = 0 in the
+            # sample frame: without a second rotation C_y is not measured at all
+            xy = any(c.strip() in _XY_MODELS for c in model.split("+"))
+            rot = (0.0, 90.0) if aniso or xy else (0.0,)
         rot = tuple(float(r) for r in rot)
         if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
             raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")
