@@ -1,12 +1,20 @@
 """Capture timings of the simulated LBL gonioreflectometer and what each skip saves.
 
-Run: ``python benchmarks/bench_capture.py [--repeat 30] [--json out.json]``
+Run: ``python benchmarks/bench_capture.py [--repeat 30] [--json out.json] [--quick]``
 
 One thread (numba, BLAS and OpenMP limited to 1 before import). Reports, for 640 × 480 and
 1024 × 1024 with a Ward BRDF (``rolled_brass``): the one-time geometry trace, ms per capture
 with the geometry cached (noise off / on), the time to merely copy the output pixels (uint16)
-and a float64 image, and for every skip the time with and without it and whether the image
-is unchanged.
+and a float64 image IN THE SAME RUN and the ratios capture / copy (issue 8: "one 1024 × 1024
+capture with cached geometry <= 3x the copy time of its pixel data"), and for every skip the
+time with and without it and whether the image is unchanged. Then:
+
+* the capture stage of the default ``gonio campaign`` (21 θi × {standard, background, 2
+  rotations} = 84 brackets, 120 frames at 640 × 480), noise on and off, wall and CPU time;
+* one bracket rendered once and composed per stop vs plan + a separate capture per stop
+  (the pre-fast-bracket way), and that the frames are identical;
+* the noise: time of the compiled draw vs numpy's exact Poisson + normal on a 640 × 480
+  image, and the mean, variance and skewness of both draws against Poisson(λ) + N(0, σ²).
 """
 
 from __future__ import annotations
@@ -75,6 +83,15 @@ def bench_size(size, repeat, model):
     f64 = np.zeros(img.shape)
     out["copy_uint16_ms"] = _time(lambda: img.copy(), repeat)
     out["copy_float64_ms"] = _time(lambda: f64.copy(), repeat)
+    for k in ("off", "on"):  # CPU medians
+        cap = out[f"capture_noise_{k}_ms"][2]
+        out[f"ratio_noise_{k}_vs_copy_uint16"] = cap / out["copy_uint16_ms"][2]
+        out[f"ratio_noise_{k}_vs_copy_float64"] = cap / out["copy_float64_ms"][2]
+    # the render alone (no metadata dict): scene + fused compose
+    out["render_noise_off_ms"] = _time(
+        lambda: inst._render("brdf", model, TH, 0.2, 0.01, 4.0, None, None, digitise=True),
+        repeat,
+    )
 
     skips = {}
     ref, _ = inst.capture(model, TH, noise=False)
@@ -131,20 +148,11 @@ def bench_size(size, repeat, model):
         all(np.array_equal(p[0], q[0]) for p, q in zip(x, y)),
     )
 
-    # 4. noise skipped when off, vs drawing zero-amplitude noise
-    sen = inst.sensor
-    rng = np.random.default_rng(0)
-
-    def zero_noise():
-        e = inst._render("brdf", model, TH, 0.0, 0.01, 4.0, None, None)
-        shot = rng.poisson(np.clip(e, 0, None)) - e
-        read = rng.standard_normal(e.shape)
-        return sen.digitise(e + 0.0 * shot + 0.0 * read).reshape(ref.shape)
-
+    # 4. noise skipped when off, vs drawing zero-amplitude noise (capture's own switch)
     skips["noise off: no random draws"] = (
         _time(lambda: inst.capture(model, TH, noise=False), repeat),
-        _time(zero_noise, max(3, repeat // 5)),
-        bool(np.array_equal(zero_noise(), ref)),
+        _time(lambda: inst.capture(model, TH, noise=False, skip_noise_draws=False), repeat // 3),
+        bool(np.array_equal(inst.capture(model, TH, noise=False, skip_noise_draws=False)[0], ref)),
     )
 
     # 5. source-cone average skipped when the lobe is >= 5x the beam divergence
@@ -172,11 +180,159 @@ def bench_bracket(model_fn):
     return {"ladder": list(stops), **plan, "bracket_ms": (time.perf_counter() - t0) * 1e3}
 
 
+def bench_bracket_reuse(repeat):
+    """One bracket from one render vs plan + one capture per stop; frames identical?"""
+    from gonio.simulator import LBLInstrument
+
+    from gonio import materials
+
+    inst = LBLInstrument(width=640, height=480)
+    brass = materials.get("rolled_brass")
+    out = {}
+    for label, smp in (("rolled_brass", brass), ("standard", "standard")):
+        plan = inst.plan_bracket(smp, TH)
+
+        def separate(smp=smp):
+            p = inst.plan_bracket(smp, TH)
+            return [inst.capture(smp, TH, f_number=n, noise=False)[0] for n in p["f_numbers"]]
+
+        def once(smp=smp):
+            return [img for img, _ in inst.bracket(smp, TH, noise=False)]
+
+        same = all(np.array_equal(a, b) for a, b in zip(once(), separate()))
+        out[label] = {
+            "stops": plan["f_numbers"],
+            "once_ms": _time(once, repeat)[2],
+            "plan_plus_captures_ms": _time(separate, repeat)[2],
+            "identical": same,
+        }
+    return out
+
+
+def bench_campaign_stage(noise, repeat=3):
+    """The default campaign's capture stage (the brackets ``gonio campaign`` takes)."""
+    from gonio import campaign, materials
+
+    plan = campaign.Plan(plots=False).resolved()
+    inst = campaign._SimulatedLBL(plan).inst
+    truth = materials.get(plan.material)
+
+    def stage():
+        n = 0
+        for th in plan.theta_i_deg:
+            ti = math.radians(th)
+            s = campaign.capture_seed(plan.seed, campaign._fmt_key(th))
+            n += len(inst.bracket("standard", ti, 0.0, rng=s, noise=noise))
+            n += len(inst.bracket(None, ti, 0.0, rng=s + 1, noise=noise))
+            for rot in plan.rotations_deg:
+                n += len(inst.bracket(truth, ti, math.radians(rot), rng=s, noise=noise))
+        return n
+
+    frames = stage()  # warm
+    ts, cs = [], []
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        stage()
+        ts.append(time.perf_counter() - t0)
+        cs.append(time.process_time() - c0)
+    return {
+        "noise": noise,
+        "frames": frames,
+        "brackets": len(plan.theta_i_deg) * (2 + len(plan.rotations_deg)),
+        "wall_s_min": min(ts),
+        "cpu_s_min": min(cs),
+        "ms_per_frame_cpu": min(cs) / frames * 1e3,
+    }
+
+
+def bench_noise(repeat):
+    """Compiled draw vs numpy's exact draw: time on 640x480 and moments vs the model."""
+    from gonio.simulator import LBLInstrument, Sensor
+
+    inst = LBLInstrument(width=640, height=480)
+    e = inst.electrons("rolled_brass", TH, f_number=4.0)
+    sen = inst.sensor
+    rng = np.random.default_rng(0)
+    out = {
+        "threshold_e": sen.normal_threshold,
+        "fast_ms": _time(lambda: sen.add_noise(e, rng), repeat)[2],
+        "exact_ms": _time(lambda: sen.add_noise(e, rng, exact=True), max(3, repeat // 3))[2],
+        "moments": [],
+    }
+    n = 1_000_000
+    for sigma in (8.0, 3.0):
+        s = Sensor(read_noise=sigma)
+        for lam in (0.2, 5.0, 20.0, 30.0, 100.0, 1000.0, 30000.0):
+            v = lam + sigma**2
+            row = {"read_noise": sigma, "lam": lam, "model_var": v, "model_skew": lam / v**1.5}
+            for kind, exact in (("fast", False), ("exact", True)):
+                x = s.add_noise(np.full(n, lam), np.random.default_rng(int(lam) + 1), exact=exact)
+                d = x - x.mean()
+                var = float((d * d).mean())
+                row[f"{kind}_mean"] = float(x.mean())
+                row[f"{kind}_var"] = var
+                row[f"{kind}_skew"] = float((d**3).mean() / var**1.5)
+            row["se_mean"] = math.sqrt(v / n)
+            row["se_var"] = v * math.sqrt(2.0 / n)
+            row["se_skew"] = math.sqrt(6.0 / n)
+            out["moments"].append(row)
+    return out
+
+
+def _tv_distance(lam, sigma, gain):
+    """Exact total-variation distance between the DN histograms (DN = rint(e / gain)) of
+    Poisson(lam) + N(0, sigma²) and of the skew-corrected normal the sensor draws."""
+    from scipy import stats
+
+    v = lam + sigma**2
+    half = 12.0 * math.sqrt(v) + 20.0
+    j = np.arange(math.floor((lam - half) / gain) - 1, math.ceil((lam + half) / gain) + 2)
+    edges = (j - 0.5) * gain
+    k = np.arange(0, int(lam + 12.0 * math.sqrt(lam) + 20.0))
+    pk = stats.poisson.pmf(k, lam)
+    if sigma > 0:
+        exact = pk @ np.diff(stats.norm.cdf((edges[None, :] - k[:, None]) / sigma), axis=1)
+    else:
+        idx = np.clip(np.searchsorted(edges, k, side="right") - 1, 0, len(edges) - 2)
+        exact = np.bincount(idx, weights=pk, minlength=len(edges) - 1)
+    c = lam / (6.0 * v)
+    s = math.sqrt(v - 2.0 * c * c)
+    if c > 0:  # e = lam + s z + c (z² - 1) is increasing for z > -s / 2c: invert it
+        disc = s * s + 4.0 * c * (edges - lam + c)
+        z = np.where(disc >= 0, (-s + np.sqrt(np.maximum(disc, 0.0))) / (2.0 * c), -np.inf)
+    else:
+        z = (edges - lam) / s
+    approx = np.diff(stats.norm.cdf(z))
+    return 0.5 * float(np.abs(exact - approx).sum())
+
+
+def noise_tv_table():
+    """Worst TV distance of the approximation, where the sensor uses it and at λ >= 30."""
+    from gonio.simulator import Sensor
+
+    lams = (0.05, 0.2, 0.5, 1, 2, 3, 5, 10, 20, 30, 100, 300, 1000, 3000, 10000)
+    rows = []
+    for sigma in (2.0, 3.0, 4.0, 6.0, 8.0, 10.0):
+        thr = Sensor(read_noise=sigma).normal_threshold
+        used, hi = 0.0, 0.0
+        for gain in (40000.0 / 65535.0, 1.0, 2.5, 10.0):  # 0.61: a 16-bit ADC at 40 000 e-
+            for lam in lams:
+                tv = _tv_distance(lam, sigma, gain)
+                if lam >= thr:
+                    used = max(used, tv)
+                if lam >= 30:
+                    hi = max(hi, tv)
+        rows.append({"read_noise": sigma, "threshold_e": thr, "worst_tv_used": used,
+                     "worst_tv_lam_ge_30": hi})  # fmt: skip
+    return rows
+
+
 def main(argv=None):
     from gonio import materials
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--repeat", type=int, default=30)
+    ap.add_argument("--quick", action="store_true", help="skip the per-skip timings")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     model = materials.get("rolled_brass")
@@ -186,10 +342,17 @@ def main(argv=None):
         results.append(r)
         print(f"\n== {r['size']}  ({r['candidate_pixels']} of {r['pixels']} pixels see the sample)")
         print(f"geometry trace (one-time, CPU) {r['geometry_ms']:9.1f} ms")
-        for k in ("capture_noise_off_ms", "capture_noise_on_ms", "copy_uint16_ms",
-                  "copy_float64_ms"):  # fmt: skip
+        for k in ("capture_noise_off_ms", "capture_noise_on_ms", "render_noise_off_ms",
+                  "copy_uint16_ms", "copy_float64_ms"):  # fmt: skip
             med, mn, cpu = r[k]
             print(f"{k[:-3]:<30} {med:9.3f} ms (median)  {mn:8.3f} ms (min)  {cpu:8.3f} ms (CPU)")
+        print(
+            "capture / copy (CPU medians):  noise off "
+            f"{r['ratio_noise_off_vs_copy_uint16']:.0f}x uint16, "
+            f"{r['ratio_noise_off_vs_copy_float64']:.1f}x float64;  noise on "
+            f"{r['ratio_noise_on_vs_copy_uint16']:.0f}x uint16, "
+            f"{r['ratio_noise_on_vs_copy_float64']:.1f}x float64  (issue 8 target: <= 3x)"
+        )
         print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
         for k, v in r["skips"].items():
             print(f"{k:<46}{v['with_ms']:>8.2f}ms{v['without_ms']:>8.2f}ms  {v['unchanged']}")
@@ -203,7 +366,42 @@ def main(argv=None):
     print(f"\nbracketing (two-level BRDF, 640x480): ladder {br['ladder']}")
     print(f"  kept {br['f_numbers']}, skipped {br['skipped']},"
           f" covered {br['covered_fraction']:.3f}, {br['bracket_ms']:.1f} ms")  # fmt: skip
-    out = {"sizes": results, "bracket": br}
+    reuse = bench_bracket_reuse(max(3, args.repeat // 5))
+    print("\none bracket, 640x480, noise off (CPU ms, median): scene rendered once vs "
+          "plan + one capture per stop")  # fmt: skip
+    for k, v in reuse.items():
+        sep = v["plan_plus_captures_ms"]
+        print(f"  {k:<14} stops {v['stops']}: {v['once_ms']:.2f} ms vs "
+              f"{sep:.2f} ms, frames identical: {v['identical']}")  # fmt: skip
+    camp = [bench_campaign_stage(nz) for nz in (False, True)]
+    print("\ndefault campaign capture stage (84 brackets, 640x480):")
+    for c in camp:
+        print(f"  noise {'on ' if c['noise'] else 'off'}: {c['frames']} frames  "
+              f"wall {c['wall_s_min']:.3f} s  CPU {c['cpu_s_min']:.3f} s  "
+              f"({c['ms_per_frame_cpu']:.2f} ms/frame CPU, plan included)")  # fmt: skip
+    nz = bench_noise(max(5, args.repeat // 3))
+    print(
+        f"\nnoise on a 640x480 rolled-brass frame (f/4), CPU ms: compiled {nz['fast_ms']:.2f}"
+        f" (normal from {nz['threshold_e']:g} e-), numpy exact Poisson {nz['exact_ms']:.2f}"
+    )
+    print("moments of 1e6 draws, (value - model) / standard error; fast | exact")
+    for m in nz["moments"]:
+        dm = [(m[f"{k}_mean"] - m["lam"]) / m["se_mean"] for k in ("fast", "exact")]
+        dv = [(m[f"{k}_var"] - m["model_var"]) / m["se_var"] for k in ("fast", "exact")]
+        dg = [(m[f"{k}_skew"] - m["model_skew"]) / m["se_skew"] for k in ("fast", "exact")]
+        print(f"  sigma {m['read_noise']:3g} lam {m['lam']:7g}: mean {dm[0]:+5.1f} | {dm[1]:+5.1f}"
+              f"   var {dv[0]:+5.1f} | {dv[1]:+5.1f}   skew {dg[0]:+5.1f} | {dg[1]:+5.1f}"
+              f"   (skew model {m['model_skew']:.4f}, fast {m['fast_skew']:.4f},"
+              f" exact {m['exact_skew']:.4f})")  # fmt: skip
+    tv = noise_tv_table()
+    print("\nTV distance of DN histograms, approximated vs exact draw (gains 0.61, 1, 2.5,"
+          " 10 e-/DN; lambda 0.05..1e4 e-):")  # fmt: skip
+    for r in tv:
+        used, hi = r["worst_tv_used"], r["worst_tv_lam_ge_30"]
+        print(f"  read noise {r['read_noise']:4g} e-: normal from {r['threshold_e']:g} e-, worst "
+              f"TV where used {used:.1e}, at lambda >= 30 {hi:.1e}")  # fmt: skip
+    out = {"sizes": results, "bracket": br, "bracket_reuse": reuse, "campaign_stage": camp,
+           "noise": nz, "noise_tv": tv}  # fmt: skip
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=2)

@@ -943,11 +943,58 @@ for _knob in (
 ):
     register_knob(_knob)
 
-# knobs whose code is not there yet: listed, not faked
-for _name, _desc, _waiting in (
-    ("rays_per_pixel", "rays traced per camera pixel", "lbl: no sub-pixel ray count exposed"),
-):
-    register_knob(Knob(_name, _desc, (), (), None, waiting_on=_waiting))
+#: the rays-per-pixel knob's image size (small pixels would hide the sub-pixel effect less)
+_RAYS_SIZE = (160, 120)
+_RAYS_REF = 64
+
+
+def _rays_image(n: int) -> NDArray:
+    from gonio.brdf import create
+
+    inst = _instrument("ellipsoid", *_RAYS_SIZE)
+    sharp = create("ward", **SHARP_WARD)
+    ti = math.radians(30.0)
+    return inst.electrons(sharp, ti, rays_per_pixel=int(n)) - inst.electrons(None, ti)
+
+
+def _warm_rays() -> None:
+    """Untimed: the reference image, and every setting's supersampled geometry traced (the
+    knob times a render with cached geometry, as a campaign's captures are)."""
+    REFERENCES.get("rays_ref", lambda: _rays_image(_RAYS_REF))
+    for n in (1, 4, 9, 16, 25):
+        _instrument("ellipsoid", *_RAYS_SIZE)._geometry(n)
+
+
+def _knob_rays(n: int, seed: int) -> dict[str, float]:
+    ref = REFERENCES.get("rays_ref", lambda: _rays_image(_RAYS_REF))
+    img = _rays_image(n)
+    lit = ref > 0.01 * ref.max()
+    d = (img[lit] - ref[lit]) / ref[lit]
+    return {
+        "image_rel_rms": float(np.sqrt(np.mean(d * d))),
+        "image_rel_max": float(np.abs(d).max()),
+        "signal_rel_err": float(abs(img[lit].sum() - ref[lit].sum()) / ref[lit].sum()),
+    }
+
+
+register_knob(
+    Knob(
+        "rays_per_pixel",
+        "sub-pixel supersampling of the simulated LBL capture (s × s rays per pixel, each "
+        "traced through the mirror to the sample) for a sharp Ward lobe (α = 0.01/0.02), "
+        f"{_RAYS_SIZE[0]}×{_RAYS_SIZE[1]}, θi = 30°, noise-free; error: RMS and max relative "
+        f"difference of the lit pixels' signal from a {_RAYS_REF}-ray reference (time: one "
+        "render, sub-pixel geometry traced beforehand)",
+        settings=(1, 4, 9, 16, 25),
+        quick_settings=(1, 4),
+        run=_knob_rays,
+        primary="image_rel_rms",
+        unit="rays",
+        needs=("gonio.simulator.lbl:_check_rays",),
+        waiting_on="lbl: capture(rays_per_pixel=)",
+        prepare=_warm_rays,
+    )
+)
 
 
 # --------------------------------------------------------------------------- Oren-Nayar quadrature
@@ -1077,19 +1124,71 @@ for _ab in (
 ):
     register_ablation(_ab)
 
-for _name, _desc, _waiting in (
-    (
+
+def _abl_noise_off(enabled: bool) -> NDArray:
+    img, _ = _instrument().capture(LBL_MATERIAL, _ABL_THETA, noise=False, skip_noise_draws=enabled)
+    return img.astype(np.float64)
+
+
+def _usable_at(n: float) -> NDArray:
+    """Lit pixels of the sharp lobe in the usable range at f/n (unsaturated with 10 %
+    headroom, >= 16 DN of signal), from that stop's own noise-free electrons (cached)."""
+
+    def make() -> NDArray:
+        from gonio.brdf import create
+
+        inst = _instrument()
+        sharp = create("ward", **SHARP_WARD)
+        e = inst.electrons(sharp, _ABL_THETA, f_number=n)
+        b = inst.electrons(None, _ABL_THETA, f_number=n)
+        sen = inst.sensor
+        return (e <= 0.9 * sen.full_well) & (e - b >= 16.0 * sen.gain)
+
+    return REFERENCES.get(f"usable_f{n:g}", make)
+
+
+def _warm_skipping() -> None:
+    from gonio.simulator.lbl import F_STOPS
+
+    _warm_instrument()
+    for n in F_STOPS:
+        _usable_at(n)
+
+
+def _abl_exposure_skipping(enabled: bool) -> NDArray:
+    """Bracket (noise off) with and without the skipped stops; the result is the set of lit
+    pixels measured in the usable range by at least one of the frames taken."""
+    from gonio.brdf import create
+
+    inst = _instrument()
+    frames = inst.bracket(create("ward", **SHARP_WARD), _ABL_THETA, noise=False, skip_stops=enabled)
+    covered = np.zeros((inst.lens.height, inst.lens.width), dtype=bool)
+    for _img, meta in frames:
+        covered |= _usable_at(meta["f_number"])
+    return covered.astype(np.float64)
+
+
+for _ab in (
+    Ablation(
         "noise_off",
-        "no random draws when noise is off",
-        "lbl: no switch to draw zero noise (capture(noise=False) always skips the draws)",
+        "no random draws when noise is off (off: the shot and read noise are drawn and added "
+        "with zero amplitude); capture of rolled brass, 640×480",
+        _abl_noise_off,
+        needs=("gonio.simulator.lbl:_check_rays",),
+        prepare=_warm_instrument,
     ),
-    (
+    Ablation(
         "exposure_skipping",
-        "f-stops adding no unsaturated pixel are skipped",
-        "lbl: bracket() always applies plan_bracket's skip; no switch to merge every stop",
+        "f-stops adding no usable pixel skipped by plan_bracket (off: every stop from the "
+        "first unsaturated one is captured); sharp Ward lobe, θi = 30°, noise off; result: "
+        "the lit pixels measured in the usable range (each stop's own noise-free render) by "
+        "at least one frame taken",
+        _abl_exposure_skipping,
+        needs=("gonio.simulator.lbl:_check_rays",),
+        prepare=_warm_skipping,
     ),
 ):
-    register_ablation(Ablation(_name, _desc, None, waiting_on=_waiting))
+    register_ablation(_ab)
 
 
 # --------------------------------------------------------------------------- Cornell plan density

@@ -14,8 +14,12 @@ lit pixels; the Ward kernel masks them), the beam-footprint test itself when eve
 the sample centre (ellipsoid), the float image and a second pass when noise is off (the ADC
 is fused into the render pass), spectral bands of a grey BRDF
 (:meth:`LBLInstrument.capture_bands` evaluates once), random draws when noise is off,
-f-stops adding no unsaturated pixel (:meth:`LBLInstrument.plan_bracket`), and the
-source-cone average when the lobe is much wider than the source.
+f-stops adding no unsaturated pixel (:meth:`LBLInstrument.plan_bracket`), re-rendering per
+f-stop (a bracket renders the noise-free scene once at f/1 and composes every stop from it:
+signal and background scale with 1/N², dark current does not), and the source-cone average
+when the lobe is much wider than the source. With noise on, compose, shot + read noise and
+the ADC are one compiled pass (:mod:`gonio.simulator.sensor` explains the noise draw).
+``rays_per_pixel`` supersamples each pixel with an s × s grid of traced rays.
 
 Radiometry (photon units, see :mod:`gonio.simulator.source`): a sample point lit by the beam
 (irradiance ``E`` normal to the beam, dome transmittance ``T``) reflects radiance
@@ -99,13 +103,65 @@ class Geometry:
         return self.height * self.width
 
 
-def _trace_geometry(mirror: Mirror, lens: FisheyeLens, sample_radius: float) -> Geometry:
+#: most sub-pixel rays a supersampled geometry may hold (about 60 bytes each)
+MAX_RAYS = 1 << 23
+
+
+@dataclass
+class _Scene:
+    """A noise-free scene rendered once, for any f-number.
+
+    Electrons at f-number ``N`` (``tk = exposure/N²``, ``k = k0 · tk``)::
+
+        e = bg · tk + dark · exposure + rc · lit · (k·kd0 + k·ks0 · g · isq)  (at idx)
+            [+ k · delta value at the delta pixels]
+
+    i.e. the signal and the background scale with 1/N², the dark current does not. A capture
+    and every stop of a bracket compose from the same scene with the same arithmetic, so a
+    bracket's noise-free frames equal separate captures bit for bit.
+    """
+
+    bg: NDArray  # background electrons per second at f/1, per pixel (flat)
+    dark: NDArray  # dark electrons per second, per pixel (flat)
+    exposure: float
+    k0: float  # beam irradiance x dome transmittance x dome reflectance
+    idx: NDArray  # candidate pixels (sorted; repeated per ray when supersampled)
+    rc: NDArray  # their response (electrons per unit radiance-time at f/1, / rays)
+    lit: NDArray  # uint8: inside the beam footprint
+    g: NDArray
+    isq: NDArray
+    kd0: float
+    ks0: float
+    delta: tuple[NDArray, NDArray] | None
+    rays: int = 1
+
+
+def _check_rays(rays_per_pixel: Any) -> int:
+    """``rays_per_pixel`` as an int that is a perfect square in [1, 64]."""
+    try:
+        n = int(rays_per_pixel)
+        ok = n == rays_per_pixel
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or not (1 <= n <= 64) or math.isqrt(n) ** 2 != n:
+        raise ValueError(
+            f"rays_per_pixel must be a square number 1, 4, 9, ..., 64 (an s x s sub-pixel "
+            f"grid), got {rays_per_pixel!r}"
+        )
+    return n
+
+
+def _trace_geometry(
+    mirror: Mirror, lens: FisheyeLens, sample_radius: float, rays: int = 1
+) -> Geometry:
     t0 = time.perf_counter()
     h, w = lens.height, lens.width
     uv = lens.pixel_grid().reshape(-1, 2)
     in_field = lens.in_field(uv)
     field_idx = np.flatnonzero(in_field)
     dirs = lens.unproject(uv[field_idx])
+    if rays > 1:
+        return _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0)
     tr = mirror.trace(dirs)
     q = tr["sample_point"] - mirror.sample_position
     on_sample = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= sample_radius**2)
@@ -142,6 +198,62 @@ def _trace_geometry(mirror: Mirror, lens: FisheyeLens, sample_radius: float) -> 
         isq=1.0 / np.sqrt(wo[sel, 2]),
         q_max=float(np.sqrt((q[sel, 0] ** 2 + q[sel, 1] ** 2).max(initial=0.0))),
         pixel_angle=ang,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0) -> Geometry:
+    """Geometry of an ``s x s`` grid of sub-pixel rays per pixel (``rays = s²``).
+
+    Each candidate entry is one ray that sees the sample; ``idx`` repeats its pixel (sorted,
+    a pixel's rays contiguous). Traced in chunks of pixels to bound the temporary memory.
+    """
+    h, w = lens.height, lens.width
+    s = math.isqrt(rays)
+    if h * w * rays > MAX_RAYS:
+        raise ValueError(
+            f"rays_per_pixel = {rays} on a {w} x {h} image is {h * w * rays} rays; at most "
+            f"{MAX_RAYS} are traced (use fewer rays or a smaller image)"
+        )
+    off = (np.arange(s) + 0.5) / s - 0.5
+    ou, ov = (a.ravel() for a in np.meshgrid(off, off))
+    parts: dict[str, list[NDArray]] = {k: [] for k in ("idx", "wo", "q")}
+    chunk = max(1, (1 << 18) // rays)
+    for start in range(0, h * w, chunk):
+        pix = np.arange(start, min(start + chunk, h * w))
+        rows, cols = np.divmod(pix, w)
+        uv = np.stack(
+            [(cols[:, None] + ou[None, :]).ravel(), (rows[:, None] + ov[None, :]).ravel()],
+            axis=-1,
+        ).astype(np.float64)
+        inf = lens.in_field(uv)
+        ray_pix = np.repeat(pix, rays)
+        cand = np.flatnonzero(inf)
+        if cand.size == 0:
+            continue
+        tr = mirror.trace(lens.unproject(uv[cand]))
+        q = tr["sample_point"] - mirror.sample_position
+        ok = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= sample_radius**2)
+        parts["idx"].append(ray_pix[cand[ok]])
+        parts["wo"].append(tr["wo"][ok])
+        parts["q"].append(q[ok, :2])
+    idx = np.concatenate(parts["idx"]) if parts["idx"] else np.zeros(0, dtype=np.int64)
+    wo = np.concatenate(parts["wo"]) if parts["wo"] else np.zeros((0, 3))
+    q = np.concatenate(parts["q"]) if parts["q"] else np.zeros((0, 2))
+    return Geometry(
+        height=h,
+        width=w,
+        field_idx=field_idx,
+        field_dirs=dirs,
+        idx=idx.astype(np.int64),
+        wx=np.ascontiguousarray(wo[:, 0]),
+        wy=np.ascontiguousarray(wo[:, 1]),
+        wz=np.ascontiguousarray(wo[:, 2]),
+        qx=np.ascontiguousarray(q[:, 0]),
+        qy=np.ascontiguousarray(q[:, 1]),
+        isq=1.0 / np.sqrt(wo[:, 2]),
+        q_max=float(np.sqrt((q[:, 0] ** 2 + q[:, 1] ** 2).max(initial=0.0))),
+        pixel_angle=0.0,  # (the mirror-component render uses the one-ray geometry)
         seconds=time.perf_counter() - t0,
     )
 
@@ -393,16 +505,20 @@ class LBLInstrument:
     @property
     def geometry(self) -> Geometry:
         """The traced per-pixel geometry (computed on first use, then cached)."""
+        return self._geometry(1)
+
+    def _geometry(self, rays: int = 1) -> Geometry:
+        """Traced geometry with ``rays`` sub-pixel rays per pixel (cached per instrument optics)."""
         key = (
             tuple(sorted(self.mirror.to_dict().items())),
             tuple(
                 (k, tuple(v) if isinstance(v, list) else v) for k, v in self.lens.to_dict().items()
             ),
             self.sample_radius,
-        )
+        ) + ((("rays", rays),) if rays != 1 else ())
         g = _GEOMETRY_CACHE.get(key)
         if g is None:
-            g = _trace_geometry(self.mirror, self.lens, self.sample_radius)
+            g = _trace_geometry(self.mirror, self.lens, self.sample_radius, rays)
             while len(_GEOMETRY_CACHE) >= _GEOMETRY_CACHE_SIZE:  # drop the oldest
                 _GEOMETRY_CACHE.pop(next(iter(_GEOMETRY_CACHE)))
             _GEOMETRY_CACHE[key] = g
@@ -417,6 +533,18 @@ class LBLInstrument:
             self._resp = (prnu * k).ravel()
             self._resp_c = np.ascontiguousarray(self._resp[g.idx])
         return self._resp, self._resp_c
+
+    def _resp_rays(self, g: Geometry, rays: int) -> NDArray:
+        """Per-candidate response of a supersampled geometry: each ray has 1/rays of its pixel."""
+        if rays == 1:
+            return self._response()[1]
+        cache = self.__dict__.setdefault("_resp_rays_cache", {})
+        r = cache.get(rays)
+        if r is None or r.size != g.idx.size:
+            r = self._response()[0][g.idx] * (1.0 / rays)
+            cache.clear()
+            cache[rays] = r
+        return r
 
     def _background_photons(self, wi_dome: NDArray) -> NDArray:
         """Background electrons per second at f/1, per pixel (cached per beam direction)."""
@@ -474,6 +602,7 @@ class LBLInstrument:
 
     def _signal_terms(
         self,
+        g: Geometry,
         model: BRDF,
         theta_i: float,
         phi_i: float,
@@ -489,9 +618,9 @@ class LBLInstrument:
         electrons; ``k`` = E T R_m t / N². Ward/Lambert with one source direction use the
         numba exponent kernel and numpy's exp (``g`` = the exponential, ``isq`` = 1/√cos θ_o);
         everything else evaluates ``model.evaluate_unchecked`` on the lit pixels only
-        (``g`` = Σ w f_r cos θ_i, ``isq`` = 1).
+        (``g`` = Σ w f_r cos θ_i, ``isq`` = 1). ``g`` (the argument) is the traced geometry
+        (one ray per pixel, or supersampled).
         """
-        g = self.geometry
         wi_local, wi_dome, psi = self._frames(theta_i, phi_i)
         c, s = math.cos(psi), math.sin(psi)
         bx, by = float(wi_dome[0]), float(wi_dome[1])
@@ -524,7 +653,7 @@ class LBLInstrument:
                 g.wx, g.wy, g.wz, g.qx, g.qy, np.ascontiguousarray(wis), wsrc, c, s, bx, by,
                 r2, kd, ks, iax2, iay2, approx, buf, lit,
             )  # fmt: skip
-            return lit, buf, self._ones(), 0.0, k
+            return lit, buf, self._ones(n), 0.0, k
         if visible_only:
             wx, wy, wz, qx, qy = g.wx, g.wy, g.wz, g.qx, g.qy
         else:
@@ -547,13 +676,13 @@ class LBLInstrument:
         if visible_only:
             full = np.zeros(n)
             full[litb] = acc
-            return litb.astype(np.uint8), full, self._ones(), 0.0, k
+            return litb.astype(np.uint8), full, self._ones(n), 0.0, k
         masked = np.where(litb & on, acc, 0.0)
-        return (litb & on)[pos].astype(np.uint8), masked[pos], self._ones(), 0.0, k
+        return (litb & on)[pos].astype(np.uint8), masked[pos], self._ones(n), 0.0, k
 
-    def _ones(self) -> NDArray:
-        if getattr(self, "_ones_c", None) is None or self._ones_c.size != self.geometry.idx.size:
-            self._ones_c = np.ones(self.geometry.idx.size)
+    def _ones(self, n: int) -> NDArray:
+        if getattr(self, "_ones_c", None) is None or self._ones_c.size != n:
+            self._ones_c = np.ones(n)
         return self._ones_c
 
     def _all_field_arrays(self):
@@ -573,18 +702,22 @@ class LBLInstrument:
             self._field_arrays = (wo[:, 0], wo[:, 1], wo[:, 2], q[:, 0], q[:, 1], on, g.idx)
         return self._field_arrays
 
-    def _add_delta(
-        self, out: NDArray, model: BRDF, wi_local: NDArray, wi_dome: NDArray, psi: float,
-        k: float, band: int | None, sub: int = 8,
-    ) -> None:  # fmt: skip
-        """Mirror component: radiance ρ_δ E/Ω_s over the image of the source cone."""
+    def _delta_terms(
+        self, model: BRDF, wi_local: NDArray, wi_dome: NDArray, psi: float, band: int | None,
+        sub: int = 8,
+    ) -> tuple[NDArray, NDArray] | None:  # fmt: skip
+        """Mirror component: radiance ρ_δ E/Ω_s over the image of the source cone.
+
+        Returns ``(pixels, electrons per unit k)`` (add ``k · value``; ``k`` = E T R_m t/N²),
+        or None when the model has no mirror reflectance here.
+        """
         d_local, rho = model.delta(wi_local)
         rho = np.asarray(rho, dtype=np.float64)
         if rho.ndim == 1:
             rho = rho.mean() if band is None else rho[band]
         rho = float(rho)
         if rho <= 0.0:
-            return
+            return None
         g = self.geometry
         resp, _ = self._response()
         c, s = math.cos(psi), math.sin(psi)
@@ -594,7 +727,7 @@ class LBLInstrument:
         cosang = g.wx * d_dome[0] + g.wy * d_dome[1] + g.wz * d_dome[2]
         near = np.flatnonzero(cosang >= math.cos(min(gam + 2.0 * g.pixel_angle, math.pi)))
         if near.size == 0:
-            return
+            return None
         pix = g.idx[near]
         rows, cols = np.divmod(pix, g.width)
         off = (np.arange(sub) + 0.5) / sub - 0.5
@@ -615,7 +748,7 @@ class LBLInstrument:
         )
         cover = ok.mean(axis=-1)
         radiance = rho / self.source.solid_angle  # per unit beam irradiance (k carries E)
-        out[pix] += k * resp[pix] * radiance * cover
+        return pix, resp[pix] * radiance * cover
 
     def electrons(
         self,
@@ -629,6 +762,7 @@ class LBLInstrument:
         source_samples: int | None = None,
         kernel: bool = True,
         visible_only: bool = True,
+        rays_per_pixel: int = 1,
     ) -> NDArray[np.float64]:
         """Noise-free expected electrons per pixel, ``(height, width)`` float64.
 
@@ -639,7 +773,7 @@ class LBLInstrument:
         theta_i, phi_i, exposure, f_number = self._check_args(theta_i, phi_i, exposure, f_number)
         return self._electrons(
             kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
-            kernel, visible_only,
+            kernel, visible_only, _check_rays(rays_per_pixel),
         ).reshape(self.lens.height, self.lens.width)  # fmt: skip
 
     def _check_args(self, theta_i, phi_i, exposure, f_number):
@@ -656,17 +790,17 @@ class LBLInstrument:
             raise ValueError(f"f_number must be >= 0.5, got {f_number!r}")
         return theta_i, phi_i, exposure, f_number
 
-    def _render(
-        self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
-        kernel=True, visible_only=True, digitise=False,
-    ) -> NDArray:  # fmt: skip
-        """Noise-free electrons (flat float64), or with ``digitise`` the uint16 image."""
-        g = self.geometry
+    def _scene(
+        self, kind, model, theta_i, phi_i, exposure, band, source_samples, kernel=True,
+        visible_only=True, rays=1,
+    ) -> _Scene:  # fmt: skip
+        """The noise-free scene, independent of the f-number (see :class:`_Scene`)."""
+        if rays != 1 and not visible_only:
+            raise ValueError("rays_per_pixel > 1 needs visible_only=True")
+        g = self._geometry(rays)
         _, wi_dome, psi = self._frames(theta_i, phi_i)
         bg = self._background_photons(wi_dome)
         dark = self._dark()
-        _, resp_c = self._response()
-        tk = exposure / f_number**2
         if kind == "standard":
             from gonio.brdf.lambert import Lambert
 
@@ -674,47 +808,101 @@ class LBLInstrument:
         if model is not None and model.n_bands and band is not None:
             if not (0 <= band < model.n_bands):
                 raise ValueError(f"band must be in [0, {model.n_bands}), got {band!r}")
-        k = self.source.irradiance * self.mirror.transmittance * self.mirror.reflectance * tk
+        k0 = self.source.irradiance * self.mirror.transmittance * self.mirror.reflectance
         if model is None:
+            rc = self._response()[1][:0]
             idx = g.idx[:0]
-            lit, gv, isq, kdc, ksc = idx.astype(np.uint8), resp_c[:0], resp_c[:0], 0.0, 0.0
-            rc = resp_c[:0]
+            lit, gv, isq, kd0, ks0 = idx.astype(np.uint8), rc, rc, 0.0, 0.0
         else:
-            idx, rc = g.idx, resp_c
-            lit, gv, isq, kdc, ksc = self._signal_terms(
-                model, theta_i, phi_i, k, band, source_samples, kernel, visible_only
+            idx, rc = g.idx, self._resp_rays(g, rays)
+            lit, gv, isq, kd0, ks0 = self._signal_terms(
+                g, model, theta_i, phi_i, 1.0, band, source_samples, kernel, visible_only
             )
-        delta = model is not None and model.has_delta
+        delta = None
+        if model is not None and model.has_delta:
+            wi_local, _, _ = self._frames(theta_i, phi_i)
+            delta = self._delta_terms(model, wi_local, wi_dome, psi, band)
+        return _Scene(bg, dark, exposure, k0, idx, rc, lit, gv, isq, kd0, ks0, delta, rays)
+
+    def _compose(self, sc: _Scene, f_number: float, kernel=True, digitise=False) -> NDArray:
+        """Noise-free electrons of a scene at ``f_number`` (flat float64), or with
+        ``digitise`` the flat uint16 image."""
+        tk = sc.exposure / f_number**2
+        k = sc.k0 * tk
+        kdc, ksc = k * sc.kd0, k * sc.ks0
         sen = self.sensor
+        n = self.lens.height * self.lens.width
         if kernel:
             from gonio.simulator import _kernels
 
-            if digitise and not delta and sen.linear:
-                img = np.empty(g.n_pixels, dtype=np.uint16)
+            if digitise and sc.delta is None and sen.linear:
+                img = np.empty(n, dtype=np.uint16)
                 _kernels.compose_u16(
-                    bg, dark, tk, exposure, idx, rc, lit, gv, isq, kdc, ksc,
-                    sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
+                    sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc,
+                    ksc, sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
                 )  # fmt: skip
                 return img
-            out = np.empty(g.n_pixels)
-            _kernels.compose_float(bg, dark, tk, exposure, idx, rc, lit, gv, isq, kdc, ksc, out)
+            out = np.empty(n)
+            _kernels.compose_float(
+                sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc, ksc,
+                out,
+            )  # fmt: skip
         else:
-            out = bg * tk + dark * exposure
-            out[idx] += rc * lit * (kdc + ksc * gv * isq)
-        if delta:
-            wi_local, _, _ = self._frames(theta_i, phi_i)
-            self._add_delta(out, model, wi_local, wi_dome, psi, k, band)
+            out = sc.bg * tk + sc.dark * sc.exposure
+            sig = sc.rc * sc.lit * (kdc + ksc * sc.g * sc.isq)
+            if sc.rays == 1:
+                out[sc.idx] += sig
+            else:  # a pixel's sub-pixel rays add up
+                np.add.at(out, sc.idx, sig)
+        if sc.delta is not None:
+            pix, val = sc.delta
+            out[pix] += k * val
         if digitise:
             return sen.digitise(out)
         return out
 
+    def _shoot(
+        self, sc: _Scene, f_number: float, noise: bool, rng, binning, skip_noise_draws=True
+    ) -> tuple[NDArray[np.uint16], FisheyeLens]:
+        """One frame of a scene: noise (or none), ADC, optional binning."""
+        sen = self.sensor
+        h, w = self.lens.height, self.lens.width
+        if not noise and skip_noise_draws and binning is None and sen.linear and sc.delta is None:
+            # no random draws, ADC fused into the render pass
+            return self._compose(sc, f_number, digitise=True).reshape(h, w), self.lens
+        e = self._compose(sc, f_number)
+        if noise:
+            # shot + read noise drawn in place (a separate compiled pass is faster than one
+            # fused with the compose: the generator's state stays in registers)
+            from gonio.simulator import _kernels
+
+            _kernels.noise_float(e, rng, sen.normal_threshold, sen.read_noise, e)
+        elif not skip_noise_draws:
+            # the "no random draws when noise is off" rule switched off (benchmark): draw the
+            # shot and read noise as if noise were on and add them with zero amplitude
+            gen = np.random.default_rng(0)
+            drawn = sen.add_noise(e, gen) - e
+            e = e + 0.0 * drawn
+        return self._finish(e, False, None, binning)
+
+    def _render(
+        self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
+        kernel=True, visible_only=True, digitise=False, rays=1,
+    ) -> NDArray:  # fmt: skip
+        """Noise-free electrons (flat float64), or with ``digitise`` the uint16 image."""
+        sc = self._scene(
+            kind, model, theta_i, phi_i, exposure, band, source_samples, kernel, visible_only,
+            rays,
+        )  # fmt: skip
+        return self._compose(sc, f_number, kernel, digitise)
+
     def _electrons(
         self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
-        kernel=True, visible_only=True,
+        kernel=True, visible_only=True, rays=1,
     ) -> NDArray:  # fmt: skip
         return self._render(
             kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
-            kernel, visible_only, False,
+            kernel, visible_only, False, rays,
         )  # fmt: skip
 
     def _dark(self) -> NDArray:
@@ -769,6 +957,8 @@ class LBLInstrument:
         binning: tuple[int, int] | bool | None = None,
         band: int | None = None,
         source_samples: int | None = None,
+        rays_per_pixel: int = 1,
+        skip_noise_draws: bool = True,
     ) -> tuple[NDArray[np.uint16], dict[str, Any]]:
         """One raw image of ``sample`` lit from (θ_i, φ_i).
 
@@ -798,6 +988,13 @@ class LBLInstrument:
         source_samples : int, optional
             Directions averaged over the source cone; default 1 when the model's lobe is
             at least 5× the beam divergence (or the model declares no lobe width), else 19.
+        rays_per_pixel : int
+            Sub-pixel supersampling: an ``s × s`` grid of rays per pixel (1, 4, 9, ..., 64),
+            each traced through the mirror to the sample; the pixel averages their BRDF
+            values (the background stays per pixel). Recorded in the metadata when not 1.
+        skip_noise_draws : bool
+            Benchmark switch of the rule "no random draws when noise is off": False draws
+            the shot and read noise anyway and adds them with zero amplitude (same image).
 
         Returns
         -------
@@ -808,19 +1005,13 @@ class LBLInstrument:
         kind, model, material = _resolve_sample(sample)
         theta_i, phi_i, exposure, f_number = self._check_args(theta_i, phi_i, exposure, f_number)
         binning = self._check_binning(binning)
+        rays = _check_rays(rays_per_pixel)
         gen, seed = _rng_and_seed(rng) if noise else (None, None)
-        if noise or binning is not None:
-            e = self._render(kind, model, theta_i, phi_i, exposure, f_number, band, source_samples)
-            img, lens = self._finish(e, noise, gen, binning)
-        else:  # noise off: no random draws, and the ADC fused into the render pass
-            img = self._render(
-                kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
-                digitise=True,
-            ).reshape(self.lens.height, self.lens.width)  # fmt: skip
-            lens = self.lens
+        sc = self._scene(kind, model, theta_i, phi_i, exposure, band, source_samples, rays=rays)
+        img, lens = self._shoot(sc, f_number, noise, gen, binning, skip_noise_draws)
         meta = self.metadata(
             kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
-            band, source_samples, lens, img,
+            band, source_samples, lens, img, rays,
         )  # fmt: skip
         return img, meta
 
@@ -842,9 +1033,12 @@ class LBLInstrument:
 
     def metadata(
         self, kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
-        band, source_samples, lens, img,
+        band, source_samples, lens, img, rays_per_pixel=1,
     ) -> dict[str, Any]:  # fmt: skip
-        """The metadata dict of a capture (everything needed to reproduce it)."""
+        """The metadata dict of a capture (everything needed to reproduce it).
+
+        ``rays_per_pixel`` is recorded (key ``"rays_per_pixel"``) only when it is not 1.
+        """
         meta = self.to_dict()
         meta["full_lens"] = meta["lens"]
         meta["lens"] = lens.to_dict()
@@ -874,6 +1068,8 @@ class LBLInstrument:
                 "sample at (0,D,0); camera frame = dome frame, image u = +x, v = +y",
             }
         )
+        if rays_per_pixel != 1:
+            meta["rays_per_pixel"] = int(rays_per_pixel)
         return meta
 
     # ------------------------------------------------------------------ bands
@@ -946,6 +1142,7 @@ class LBLInstrument:
         f_stops: Sequence[float] = F_STOPS,
         min_signal_dn: float = 16.0,
         headroom: float = 0.9,
+        skip_stops: bool = True,
     ) -> dict[str, Any]:
         """Choose the f-stops that cover the dynamic range of a sample's image.
 
@@ -953,7 +1150,11 @@ class LBLInstrument:
         brightest lit pixel stays below ``headroom × saturation``; each wider stop is kept
         only if it brings at least one lit pixel into the usable range (unsaturated and at
         least ``min_signal_dn`` above the background) that no kept stop covered. Stops
-        that add no such pixel are skipped.
+        that add no such pixel are skipped. ``skip_stops=False`` switches the skip off
+        (benchmark): every stop from the first one on is kept.
+
+        The scene is rendered once at f/1 and every stop evaluated from it (one compiled
+        pass over the lit pixels for all stops).
 
         Returns
         -------
@@ -964,46 +1165,76 @@ class LBLInstrument:
         """
         kind, model, _ = _resolve_sample(sample)
         theta_i, phi_i, exposure, _ = self._check_args(theta_i, phi_i, exposure, 1.0)
+        sc = self._scene(kind, model, theta_i, phi_i, exposure, None, None)
+        return self._plan(sc, f_stops, min_signal_dn, headroom, skip_stops)
+
+    def _plan(
+        self, sc: _Scene, f_stops, min_signal_dn, headroom, skip_stops=True
+    ) -> dict[str, Any]:
+        """:meth:`plan_bracket` on a rendered scene (electrons at f/1, rendered once)."""
         stops = sorted({_check_positive(f, "f_stops") for f in f_stops}, reverse=True)
         if not stops:
             raise ValueError("f_stops must not be empty")
         sen = self.sensor
-        # electrons at f/1: sample + background, and background alone
-        e1 = self._electrons(kind, model, theta_i, phi_i, exposure, 1.0, None, None)
-        b1 = self._electrons("none", None, theta_i, phi_i, exposure, 1.0, None, None)
-        _, dsnu = self.sensor.maps(self.lens.height, self.lens.width)
-        dark = dsnu.ravel() * sen.dark_current * exposure
-        sig1 = e1 - b1  # signal at f/1 (dark is not scaled by N)
-        lit = sig1 > 0.0
-        n_lit = int(lit.sum())
+        exposure = sc.exposure
+        if len(stops) > 62:
+            raise ValueError(f"f_stops: at most 62 stops, got {len(stops)}")
+        from gonio.simulator import _kernels
+
         sat_e = headroom * sen.full_well
-        kept: list[float] = []
-        skipped: list[float] = []
-        covered = np.zeros(lit.size, dtype=bool)
-        first = None
-        for i, n in enumerate(stops):
-            tot = (e1 - dark) / n**2 + dark
-            if tot[lit].max(initial=0.0) <= sat_e:
-                first = i
-            else:
-                break
+        min_e = min_signal_dn * sen.gain
+        inv_n2 = np.array([1.0 / n**2 for n in stops], dtype=np.float64)
+        lead = np.zeros(1, dtype=np.int64)
+        # all signal lies on candidate pixels (and the mirror component's pixels)
+        if sc.delta is None:
+            masks = np.empty(sc.idx.size, dtype=np.int64)
+            k = sc.k0 * exposure
+            n_lit = _kernels.plan_scene(
+                sc.bg, sc.dark, exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, k * sc.kd0,
+                k * sc.ks0, inv_n2, sat_e, min_e, masks, lead,
+            )  # fmt: skip
+        else:
+            cp = np.unique(np.concatenate([sc.idx, sc.delta[0]]))
+            e1 = self._compose(sc, 1.0)[cp]  # electrons at f/1: sample + background + dark
+            dk = self._dark()[cp] * exposure
+            sig = e1 - (sc.bg[cp] * exposure + dk)  # signal at f/1 (dark is not scaled by N)
+            lit = sig > 0.0
+            a, d, sig = e1[lit] - dk[lit], dk[lit], sig[lit]
+            n_lit = int(a.size)
+            masks = np.empty(max(n_lit, 1), dtype=np.int64)
+            _kernels.plan_masks(a, d, sig, inv_n2, sat_e, min_e, masks, lead)
+        masks = masks[:n_lit]
+        # distinct usability patterns and how many lit pixels have each
+        if len(stops) <= 16:
+            cnt = np.bincount(masks, minlength=1)
+            pats = np.flatnonzero(cnt)
+            cnt = cnt[pats]
+        else:
+            pats, cnt = np.unique(masks, return_counts=True)
+        pats = [int(x) for x in pats]
+        cnt = [int(x) for x in cnt]
+        # the widest stop before the first that saturates a lit pixel
+        first = int(lead[0]) - 1 if lead[0] > 0 else None
         peak_saturated = first is None
         start = 0 if first is None else first
-        for n in stops[start:]:
-            tot = (e1 - dark) / n**2 + dark
-            useful = lit & (tot <= sat_e) & (sig1 / n**2 >= min_signal_dn * sen.gain)
-            new = useful & ~covered
-            if new.any() or not kept:
-                kept.append(n)
-                covered |= useful
+        kept: list[float] = []
+        skipped: list[float] = []
+        kbits = 0  # bits of the kept stops: a pixel is covered when pattern & kbits != 0
+        for i in range(start, len(stops)):
+            bit = 1 << i
+            new = any(p & bit and not p & kbits for p in pats)
+            if new or not kept or not skip_stops:
+                kept.append(stops[i])
+                kbits |= bit
             else:
-                skipped.append(n)
-            if n_lit and covered[lit].all():
+                skipped.append(stops[i])
+            if skip_stops and n_lit and all(p & kbits for p in pats):
                 break
+        covered = sum(c for p, c in zip(pats, cnt) if p & kbits)
         return {
             "f_numbers": kept,
             "skipped": skipped,
-            "covered_fraction": float(covered[lit].mean()) if n_lit else 1.0,
+            "covered_fraction": covered / n_lit if n_lit else 1.0,
             "peak_saturated": peak_saturated,
             "n_lit": n_lit,
             "exposure_s": exposure,
@@ -1020,21 +1251,43 @@ class LBLInstrument:
         rng: int | np.random.Generator | None = None,
         noise: bool = True,
         binning: tuple[int, int] | bool | None = None,
+        rays_per_pixel: int = 1,
         **plan_kw: Any,
     ) -> list[tuple[NDArray[np.uint16], dict[str, Any]]]:
-        """Capture the f-stops :meth:`plan_bracket` chooses; each metadata has ``bracket``."""
-        plan = self.plan_bracket(
-            sample, theta_i, phi_i, exposure=exposure, f_stops=f_stops, **plan_kw
-        )
+        """Capture the f-stops :meth:`plan_bracket` chooses; each metadata has ``bracket``.
+
+        The noise-free scene is rendered once (at f/1); the plan and every stop are
+        composed from it (signal and background scale with 1/N², dark current does not),
+        so with noise off each frame equals ``capture(..., f_number=N)`` bit for bit.
+        Noise streams are spawned per stop from ``rng``. ``plan_kw``: ``min_signal_dn``,
+        ``headroom``, ``skip_stops`` (see :meth:`plan_bracket`).
+        """
+        kind, model, material = _resolve_sample(sample)
+        theta_i, phi_i, exposure, _ = self._check_args(theta_i, phi_i, exposure, 1.0)
+        binning = self._check_binning(binning)
+        rays = _check_rays(rays_per_pixel)
+        unknown = set(plan_kw) - {"min_signal_dn", "headroom", "skip_stops"}
+        if unknown:
+            raise ValueError(
+                f"bracket got unexpected arguments {sorted(unknown)}; plan options are "
+                "min_signal_dn, headroom, skip_stops"
+            )
+        sc = self._scene(kind, model, theta_i, phi_i, exposure, None, None, rays=rays)
+        plan = self._plan(
+            sc, f_stops, plan_kw.get("min_signal_dn", 16.0), plan_kw.get("headroom", 0.9),
+            plan_kw.get("skip_stops", True),
+        )  # fmt: skip
+        nf = len(plan["f_numbers"])
         gen, seed = _rng_and_seed(rng) if noise else (None, None)
-        gens = gen.spawn(len(plan["f_numbers"])) if noise else [None] * len(plan["f_numbers"])
+        gens = gen.spawn(nf) if noise else [None] * nf
         out = []
         for i, n in enumerate(plan["f_numbers"]):
-            img, meta = self.capture(
-                sample, theta_i, phi_i, exposure=exposure, f_number=n, rng=gens[i],
-                noise=noise, binning=binning,
+            n = self._check_args(theta_i, phi_i, exposure, n)[3]
+            img, lens = self._shoot(sc, n, noise, gens[i], binning)
+            meta = self.metadata(
+                kind, model, material, theta_i, phi_i, exposure, n, seed, noise, binning,
+                None, None, lens, img, rays,
             )  # fmt: skip
-            meta["seed"] = seed
             meta["bracket"] = {"index": i, **plan}
             out.append((img, meta))
         return out
@@ -1135,4 +1388,5 @@ def reproduce(
         binning=tuple(meta["binning"]) if meta.get("binning") else None,
         band=meta.get("band"),
         source_samples=meta.get("source_samples"),
+        rays_per_pixel=meta.get("rays_per_pixel", 1),
     )

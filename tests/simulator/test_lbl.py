@@ -395,3 +395,135 @@ def test_video_response_curve():
     b = img.astype(float) - 64
     mid = (a > 5) & (a < 150)
     assert np.all(b[mid] >= a[mid])  # gamma < 1 lifts the mid-tones
+
+
+# --------------------------------------------------------------------------- fast bracket / noise
+def _two_level(wi, wo):
+    h = wi + wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    return np.where(h[..., 2] > math.cos(0.1), 20.0, 0.01)
+
+
+@pytest.mark.parametrize(
+    "sample, phi",
+    [("rolled_brass", 0.0), ("rolled_brass", math.pi / 2), (STANDARD, 0.0), (None, 0.0),
+     (_two_level, 0.3), ("mirror", 0.4)],
+)  # fmt: skip
+def test_bracket_noise_off_equals_separate_captures(sample, phi):
+    # the bracket renders the scene once and composes every stop from it; each frame must be
+    # the capture at that f-number bit for bit (also binned, and with a mirror component)
+    inst = LBLInstrument("ellipsoid", width=160, height=120, source=Source(divergence=0.05))
+    smp = _Mirror() if sample == "mirror" else sample
+    for binning in (None, (40, 30)):
+        shots = inst.bracket(smp, TH, phi, noise=False, binning=binning)
+        plan = inst.plan_bracket(smp, TH, phi)
+        assert [m["f_number"] for _, m in shots] == plan["f_numbers"]
+        for i, (img, meta) in enumerate(shots):
+            ref, rmeta = inst.capture(smp, TH, phi, f_number=meta["f_number"], noise=False,
+                                      binning=binning)  # fmt: skip
+            assert np.array_equal(img, ref)
+            assert meta["bracket"] == {"index": i, **plan}
+            assert {k: v for k, v in meta.items() if k != "bracket"} == rmeta
+
+
+def test_bracket_noise_is_seeded_per_stop(inst):
+    a = inst.bracket("rolled_brass", TH, rng=5)
+    b = inst.bracket("rolled_brass", TH, rng=5)
+    c = inst.bracket("rolled_brass", TH, rng=6)
+    assert all(np.array_equal(x[0], y[0]) for x, y in zip(a, b))
+    assert not np.array_equal(a[0][0], c[0][0])
+    assert all(m["seed"] == 5 for _, m in a)
+
+
+def _standardised_residuals(inst, img, e):
+    """(DN - model mean) / model sd: shot + read noise + rounding (1/12 DN²), at pixels far
+    from saturation whose noise is at least 1 DN (where rounding adds a uniform 1/12)."""
+    sen = inst.sensor
+    lam = e.ravel()
+    dn = img.ravel().astype(float)
+    var_e = lam + sen.read_noise**2
+    mean = sen.black_level + lam / sen.gain
+    ok = (var_e >= sen.gain**2) & (mean + 6 * np.sqrt(var_e) / sen.gain < sen.saturation_dn)
+    var = var_e[ok] / sen.gain**2 + 1.0 / 12.0
+    return (dn[ok] - mean[ok]) / np.sqrt(var)
+
+
+@pytest.mark.parametrize(
+    "read_noise, gain, full_well",
+    [(8.0, 10.0, 40000.0), (3.0, 1.0, 4000.0), (1.0, 0.5, 2000.0)],
+)
+def test_capture_noise_matches_the_sensor_model(read_noise, gain, full_well):
+    # fused compose + noise + ADC in the three draw regimes (read noise 8 e-: skew-corrected
+    # normal at every mean; 3 e-: exact Poisson below 30 e-; 1 e-: exact everywhere): the DN
+    # of every pixel has the model's mean and variance; reproducible from the seed
+    from gonio.simulator import Sensor
+
+    sen = Sensor(read_noise=read_noise, gain=gain, full_well=full_well)
+    assert sen.normal_threshold == {8.0: 0.0, 3.0: 30.0, 1.0: math.inf}[read_noise]
+    inst = LBLInstrument("ellipsoid", width=160, height=120, sensor=sen)
+    zs = []
+    for f_number, smp in ((2.8, STANDARD), (8.0, "rolled_brass"), (2.0, None), (16.0, None)):
+        t = 0.01 * full_well / 40000.0  # similar fill of the full well
+        img, meta = inst.capture(smp, TH, exposure=t, f_number=f_number, rng=11)
+        assert np.array_equal(img, reproduce(meta)[0])
+        e = inst.electrons(smp, TH, exposure=t, f_number=f_number)
+        zs.append(_standardised_residuals(inst, img, e))
+    z = np.concatenate(zs)
+    assert z.size > 20000
+    se = 1.0 / math.sqrt(z.size)
+    assert abs(z.mean()) < 5 * se
+    assert abs(z.var() - 1.0) < 5 * math.sqrt(2.0) * se
+
+
+def test_skip_stops_switch_keeps_every_stop_and_the_same_coverage():
+    inst = LBLInstrument("ellipsoid", width=160, height=120)
+    stops = (32, 22, 16, 11, 8, 5.6, 4, 2.8, 2, 1.4)
+    on = inst.plan_bracket(_two_level, TH, f_stops=stops)
+    off = inst.plan_bracket(_two_level, TH, f_stops=stops, skip_stops=False)
+    assert on["skipped"] and not off["skipped"]
+    assert set(on["f_numbers"]) < set(off["f_numbers"])
+    assert off["f_numbers"] == sorted(off["f_numbers"], reverse=True)
+    assert off["f_numbers"][0] == on["f_numbers"][0]
+    assert off["covered_fraction"] == on["covered_fraction"] == 1.0
+    frames = inst.bracket(_two_level, TH, f_stops=stops, noise=False, skip_stops=False)
+    assert [m["f_number"] for _, m in frames] == off["f_numbers"]
+    with pytest.raises(ValueError, match="unexpected"):
+        inst.bracket(_two_level, TH, noise=False, bogus=1)
+
+
+def test_skip_noise_draws_switch_gives_the_same_image(inst):
+    a, _ = inst.capture("rolled_brass", TH, noise=False)
+    b, _ = inst.capture("rolled_brass", TH, noise=False, skip_noise_draws=False)
+    assert np.array_equal(a, b)
+
+
+def test_rays_per_pixel_supersampling():
+    inst = LBLInstrument("ellipsoid", width=80, height=60)
+    one = inst.electrons("rolled_brass", TH)
+    assert np.array_equal(inst.electrons("rolled_brass", TH, rays_per_pixel=1), one)
+    # a smooth (Lambertian) sample: the pixel average equals the centre value to first order,
+    # and the supersampled image converges as the sub-pixel grid is refined
+    sharp = brdf.create("ward", rho_d=0.02, rho_s=0.3, alpha_x=0.02, alpha_y=0.02)
+    bg = inst.electrons(None, TH)
+    imgs = {n: inst.electrons(sharp, TH, rays_per_pixel=n) - bg for n in (1, 4, 16, 64)}
+    ref = imgs[64]
+    lit = ref > 1e-3 * ref.max()
+    err = {n: float(np.abs(imgs[n] - ref)[lit].sum() / ref[lit].sum()) for n in (1, 4, 16)}
+    assert err[1] > err[4] > err[16] and err[16] < 0.3 * err[1]
+    # total signal is conserved to within the sample-edge pixels
+    assert imgs[16].sum() == pytest.approx(imgs[1].sum(), rel=0.02)
+    # the kernel and generic paths agree with sub-pixel rays too (repeated pixel indices)
+    lamb = inst.electrons("lambert", TH, rays_per_pixel=4)
+    lamb_np = inst.electrons("lambert", TH, rays_per_pixel=4, kernel=False)
+    assert np.allclose(lamb, lamb_np, rtol=1e-12, atol=0)
+    img, meta = inst.capture(sharp, TH, noise=False, rays_per_pixel=4)
+    assert meta["rays_per_pixel"] == 4
+    assert "rays_per_pixel" not in inst.capture(sharp, TH, noise=False)[1]
+    assert np.array_equal(reproduce(meta, sample=sharp)[0], img)
+    br = inst.bracket(sharp, TH, noise=False, rays_per_pixel=4)
+    ref_img, _ = inst.capture(sharp, TH, noise=False, rays_per_pixel=4,
+                              f_number=br[0][1]["f_number"])  # fmt: skip
+    assert np.array_equal(br[0][0], ref_img)
+    for bad in (2, 0, 100, 2.5, "4"):
+        with pytest.raises(ValueError, match="rays_per_pixel"):
+            inst.capture(sharp, TH, rays_per_pixel=bad)
