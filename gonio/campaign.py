@@ -632,7 +632,7 @@ def _capture_and_reduce(
 
             futs = {pool.submit(_incidence_worker, plan, th, raw, resume): k
                     for k, th in enumerate(angles)}  # fmt: skip
-            import gonio.fit  # noqa: F401  (scipy loads here while the workers capture)
+            import scipy.optimize  # noqa: F401  (loads here while the workers capture)
 
             for f in as_completed(futs):
                 k = futs[f]

@@ -88,12 +88,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from gonio import brdf as _brdf
 from gonio.brdf.base import BRDF
 from gonio.brdf.composite import Sum
-from gonio.fit_linear import solve_bounded
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -1003,6 +1001,8 @@ def fit(
     xscale = np.maximum(np.abs(x0), np.minimum(1e-2 * span, 1.0))
     xscale = np.where(xscale > 0, xscale, 1.0)
 
+    from scipy.optimize import least_squares  # imported here: ~0.5 s, only fits need it
+
     def solve(f: Callable, xs: NDArray, nfev_max: int, tol: float):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -1213,6 +1213,8 @@ class _VarPro:
         w = self.res.scale
         Aw = A * w[:, None]
         bw = (self.res.y - fa) * w
+        from gonio.fit_linear import solve_bounded
+
         dk = solve_bounded(Aw, bw, self.dlo, self.dhi)
         x = np.array(x, dtype=np.float64)
         x[self.lin] = self.a + dk
@@ -1254,6 +1256,8 @@ class _VarPro:
                 return self.project(xx)[1]
             except (ValueError, FloatingPointError, ZeroDivisionError):
                 return np.full(self.n, np.inf)
+
+        from scipy.optimize import least_squares
 
         nl = self.nl
         with warnings.catch_warnings():
