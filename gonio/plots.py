@@ -133,6 +133,7 @@ def plot_incidence_plane(
                 ok = f > 0
                 ax.plot(np.degrees(t)[ok], f[ok], "-", color=c, lw=1.2)
         ax.set_yscale("log")
+        ax.yaxis.set_minor_locator(_null_locator())  # (minor log ticks: half the drawing time)
         ax.set_xlim(-90, 90)
         ax.set_xlabel("θo in the plane of incidence (deg; + = specular side)")
         ax.set_ylabel("BRDF (sr⁻¹)")
@@ -195,6 +196,12 @@ def plot_hemisphere(
     if title:
         fig.suptitle(title)
     return _save(fig, path)
+
+
+def _null_locator():
+    from matplotlib.ticker import NullLocator
+
+    return NullLocator()
 
 
 def _circle(r: float):
