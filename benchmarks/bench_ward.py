@@ -93,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'model':14s} {'API ns/eval':>12s} {'ratio/copy':>11s} {'numpy ns/eval':>14s}")
     for name, t_api, t_np in rows:
         print(f"{name:14s} {t_api / n * 1e9:12.2f} {t_api / t_copy:11.2f} {t_np / n * 1e9:14.2f}")
+    _render_path(args.repeat)
     with tempfile.TemporaryDirectory() as tmp:
         imp_c, first_c = _first_call(tmp)
         _, first_w = _first_call(tmp)
@@ -101,6 +102,39 @@ def main(argv: list[str] | None = None) -> int:
         f"{first_c:.2f} s, warm (cached) {first_w:.2f} s"
     )
     return 0
+
+
+def _render_path(repeat: int) -> None:
+    """Ward inside the LBL render path: per-pixel evaluation on the instrument's cached
+    geometry (structure-of-arrays float64 wx, wy, wz, and qx, qy where the beam footprint
+    must be tested, per candidate pixel), the way ``LBLInstrument`` computes a capture,
+    against a copy of as many float64 as it must touch per pixel: the direction arrays read,
+    the exponent written, then read and written again by the exponential."""
+    from gonio.simulator import LBLInstrument
+
+    from gonio import materials
+
+    inst = LBLInstrument(width=1024, height=1024)
+    g = inst.geometry
+    model = materials.get("rolled_brass")
+    ti, pi = 0.5, 0.3
+
+    def render() -> None:
+        inst._signal_terms(g, model, ti, pi, 1.0, None, 1, True, True)
+
+    render()  # load the kernel
+    n = g.idx.size
+    foot = g.q_max**2 > inst.source.spot_radius**2
+    words = (5 if foot else 3) + 1 + 2
+    src = np.ones(words * n)
+    dst = np.zeros(words * n)
+    t_copy = _best(lambda: np.copyto(dst, src), repeat)
+    t = _best(render, repeat)
+    print(
+        f"render path (1024x1024 LBL capture, {n} candidate pixels): {t / n * 1e9:.2f} ns/pixel,"
+        f" copy of the {words} float64 it touches {t_copy / n * 1e9:.2f} ns/pixel, ratio "
+        f"{t / t_copy:.2f}"
+    )
 
 
 if __name__ == "__main__":
