@@ -761,13 +761,15 @@ def lbl_pipeline(
     For each incidence θi (at φi = 0): the sample, the diffuse standard and the background
     are captured at the f-stops :meth:`~gonio.simulator.LBLInstrument.plan_bracket` keeps for
     the sample (the first ``n_exposures`` of them, darkest first, if given), reduced with
-    :func:`gonio.calibration.reduce.reduce_capture` (``method``, ``thinning``) and the
+    :func:`gonio.calibration.reduce.reduce_capture` (``method``, ``thinning``; a ``thinning``
+    dict with ``select=True`` uses :func:`~gonio.calibration.reduce.reduce_selected` with the
+    dict's other options) and the
     concatenated samples fitted with :func:`gonio.fit.fit`. Returns :func:`brdf_errors` plus
     ``n_samples``.
     """
     from gonio import fit, materials
     from gonio.brdf import BRDF, create
-    from gonio.calibration.reduce import Capture, reduce_capture
+    from gonio.calibration.reduce import Capture, reduce_capture, reduce_selected
     from gonio.samples import BRDFSamples
 
     if isinstance(material, BRDF):
@@ -795,10 +797,12 @@ def lbl_pipeline(
                     )
                 )  # fmt: skip
             shots[kind] = Capture(frames)
-        res = reduce_capture(
-            shots["measured"], shots["standard"], shots["background"],
-            method=method, thinning=thinning,
-        )  # fmt: skip
+        triple = (shots["measured"], shots["standard"], shots["background"])
+        if isinstance(thinning, Mapping) and thinning.get("select"):
+            opts = {k: v for k, v in thinning.items() if k != "select"}
+            res = reduce_selected(*triple, method=method, rng=int(seed) + j, **opts)
+        else:
+            res = reduce_capture(*triple, method=method, thinning=thinning)
         tables.append(res.samples)
     samples = BRDFSamples.concatenate(tables)
     r = fit.fit(samples, truth.name, residual=residual)
@@ -815,9 +819,12 @@ _SIZES = {
 }
 _THINNING = {
     "off": False,
-    "coarse": {"base_level": 3, "max_level": 7, "peak_level": 5},
-    "default": True,
-    "fine": {"base_level": 5, "max_level": 10, "peak_level": 8},
+    "average coarse": {"base_level": 3, "max_level": 7, "peak_level": 5},
+    "average default": True,
+    "average fine": {"base_level": 5, "max_level": 10, "peak_level": 8},
+    "select coarse": {"select": True, "base_level": 4, "peak_level": 7},
+    "select default": {"select": True},
+    "select fine": {"select": True, "base_level": 6, "peak_level": 9},
 }
 _MAPS = {
     "hemisphere eq3": {"mirror": "hemisphere", "method": "eq3"},
@@ -916,10 +923,11 @@ for _knob in (
     ),
     Knob(
         "thinning_density",
-        "data thinning of the reduced pixels (adaptive equal-solid-angle bins: off, coarse, "
-        "default, fine)",
+        "data thinning of the reduced pixels: off (every pixel), averaging in adaptive "
+        "equal-solid-angle bins (coarse, default, fine), or selection of one pixel per "
+        "equal-solid-angle cell (coarse, default, fine; the campaign's default)",
         settings=tuple(_THINNING),
-        quick_settings=("coarse", "default"),
+        quick_settings=("average default", "select default"),
         run=_lbl_knob(lambda s: {"thinning": _THINNING[s]}),
         quick_run=_lbl_knob(lambda s: {"thinning": _THINNING[s]}, quick=True),
         needs=(*_LBL_NEEDS, "gonio.calibration.thinning:thin"),
