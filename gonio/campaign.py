@@ -307,9 +307,12 @@ class _SimulatedLBL:
             kw["half_separation"] = plan.d_over_r * LBLInstrument().radius
         self.inst = LBLInstrument(mirror=plan.mirror, **kw)
 
-    def prepare(self) -> None:
-        """Trace the pixel geometry now (it is cached), e.g. before forking workers."""
+    def prepare(self, sample: Any = "standard") -> None:
+        """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
+        before forking workers, which then inherit them instead of each loading them."""
         _ = self.inst.geometry
+        for smp in ("standard", sample):  # one throw-away bracket each (~10 ms)
+            self.shoot(smp, 0.5, 0.0, 0)
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
@@ -586,7 +589,7 @@ def _start_pool(n: int, inst: Any, truth_model: Any, plots: bool) -> Any:
     from concurrent.futures import ProcessPoolExecutor
 
     if hasattr(inst, "prepare"):
-        inst.prepare()
+        inst.prepare(truth_model)
     # with the fork start method the initializer's arguments are inherited, not pickled
     return ProcessPoolExecutor(
         n, mp_context=mp.get_context("fork"), initializer=_init_worker,

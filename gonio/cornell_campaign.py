@@ -10,13 +10,22 @@ the controller's resolution (``resolution_deg``), so that for the same seed they
 same samples.
 
 Identifiability (verified here, :func:`identifiability_scan`): in eq. 3-14 every term but
-the mirror part depends on σ and τ only through σ/τ (the slope m = σ/τ in D, eq. 5, the
-shadowing S, eq. 6-8, and the forward-scattering term, eq. 13); only the coherent mirror
-part exp(−g), g = (2πσ/λ)²(cos θi + cos θr)² (eq. 4), sees σ alone. So for samples without a
-mirror part (aluminized ground glass, garnet red paint, laser paper) σ and τ cannot be
-recovered separately from any BRDF data: ``fit_mode="auto"`` then holds σ at the table value
-and fits τ (equivalently, the ratio); for aluminized non-glare glass (mirror part) both are
-fitted.
+the mirror part depends on σ and τ only through τ/σ — the shadowing S (eq. 6, exponent τ/σ)
+and its shortcut (eq. 7), the effective roughness (eq. 8: σ_e/σ is a function of τ/σ alone,
+so the effective slope m_e = σ_e/τ = (σ/τ)·h(τ/σ)), the slope distribution D (eq. 10, a
+function of m_e only: the paper says so, and its (v̄·v̄/v̄·N)² is read with v̄ = L + V, the
+2π/λ of the printed v̄ making it dimensional), the directional-diffuse term (eq. 9 = F S D),
+and the forward-scattering term (eq. 13, through m_e); F, T (eq. 5, 12) see neither. Only
+the coherent mirror part (eq. 3) has exp(−g), g = (2πσ_e/λ)²(cos θi + cos θr)² (eq. 4), in
+which σ appears alone (relative to λ). Scaling σ and τ together therefore changes the model
+by exactly 0 for the samples whose constructed models have no mirror part (aluminized
+ground glass, eq. 17; garnet red paint, eq. 18; laser paper — the paper: "the specular
+reflection is negligible", "no coherent reflection is observed"), and σ and τ cannot be
+recovered separately from any BRDF data of them: ``fit_mode="auto"`` then holds σ at the
+table value and fits τ (equivalently, the ratio). For aluminized non-glare glass (eq. 16,
+mirror part) both are fitted, provided the plan puts the detector inside the mirror image of
+the source at least once (the incidence plan does; the hemispherical grid never does, and
+the paper used incidence-plane sampling for this sample) — otherwise σ is held there too.
 
 Results directory (``out``)::
 
@@ -49,7 +58,10 @@ __all__ = [
     "fit_li_torrance",
     "identifiability_scan",
     "main",
+    "offset_sensitivity",
+    "reference_band_error",
     "run_cornell_campaign",
+    "stray_offset_error",
 ]
 
 PLANS = ("incidence", "incidence_plane", "hemispherical")
@@ -196,6 +208,17 @@ def _mirror_partial_mask(samples: BRDFSamples, config: Any) -> np.ndarray:
     return (beta > abs(a_s - a_d)) & (beta < a_s + a_d)
 
 
+def _mirror_full_mask(samples: BRDFSamples, config: Any) -> np.ndarray:
+    """Rows whose detector cone lies wholly inside the mirror image of the source cone (the
+    rows that measure the mirror part's full height ρ / (Ω_s cos θi))."""
+    from gonio.simulator.cornell import _alpha
+
+    d = samples.wi * np.array([-1.0, -1.0, 1.0])
+    beta = np.arccos(np.clip(np.sum(d * samples.wo, -1), -1, 1))
+    a_s, a_d = _alpha(config.source_solid_angle), _alpha(config.detector_solid_angle)
+    return beta <= abs(a_s - a_d)
+
+
 def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np.ndarray:
     """What the instrument reads for ``model`` at directions ``wi``, ``wo`` (G, 3): the model
     averaged over the source and detector cones (the instrument's own quadrature rule), its
@@ -203,7 +226,13 @@ def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np
     computation as ``CornellInstrument.expected_brdf`` (convolve=True) but from directions.
     Returns (G, n_bands).
     """
-    from gonio.simulator.cornell import _alpha, _cone_points, _cone_rule, _lens_area
+    from gonio.simulator.cornell import (
+        _alpha,
+        _cone_points,
+        _cone_rule,
+        _lens_area,
+        effective_cos,
+    )
 
     c = config
     a_s, a_d = _alpha(c.source_solid_angle), _alpha(c.detector_solid_angle)
@@ -214,7 +243,8 @@ def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np
         pure = type(model)(**{**model.params, "d_omega_i": None})
     wi = np.asarray(wi, float).reshape(-1, 3)
     wo = np.asarray(wo, float).reshape(-1, 3)
-    ci = np.where(wi[:, 2] > 0, wi[:, 2], 1.0)
+    ce = effective_cos(wi, c)  # what the reduction divides by
+    ci = np.where(ce > 0, ce, 1.0)
     nb = len(np.atleast_1d(model.wavelengths_nm)) if model.wavelengths_nm is not None else 1
     out = np.zeros((len(wi), nb))
     for chunk in np.array_split(np.arange(len(wi)), max(1, len(wi) // 128)):
@@ -266,6 +296,70 @@ def reference_band_error(ref: Any, config: Any) -> np.ndarray:
     return np.sqrt(rel2)
 
 
+def stray_offset_error(ref: Any, config: Any) -> np.ndarray:
+    """Standard error (31 bands, BRDF units) of the additive offset the stray-light
+    subtraction leaves in every sample of a band, ``δ_b / cos θi_eff``.
+
+    The stray light is estimated once, from the beam trap (``config.n_reference_reads``
+    reads at ``t_max`` per polarisation), and subtracted from every spectrum; the error of
+    that estimate is common to all samples of a band — an additive offset ∝ 1/cos θi (the
+    reduction divides by the effective cosine) that no number of geometries averages away.
+    It barely moves a large k, but a k near 0 (e.g. garnet's k_uds below 600 nm) absorbs
+    it: garnet, hemispherical plan, seed 0: k_uds up to 14 fit standard errors above its
+    true 0. Same detector model as :func:`reference_band_error`.
+    """
+    from gonio.simulator.cornell import BANDS_NM, _hat_projector
+
+    c = config
+    n = max(1, int(c.n_reference_reads))
+    g, rd, dk = c.gain_e_per_count, c.read_noise_counts, c.dark_rate
+    use, proj = _hat_projector(tuple(np.round(ref.wavelengths_nm, 9)), tuple(BANDS_NM))
+    var = np.zeros(len(BANDS_NM))
+    for q in ("s", "p"):
+        rate = np.maximum(np.asarray(ref.rate[q], float), 1e-30)
+        stray = np.clip(np.asarray(ref.stray[q], float), 0, None)
+        var_stray = ((stray * c.t_max + 2 * dk * c.t_max) / g + 2 * rd**2) / c.t_max**2 / n
+        to_brdf = np.asarray(ref.scale, float) / rate  # counts/s -> BRDF x cos θi
+        var += 0.25 * ((proj * proj) @ (var_stray * to_brdf**2)[use])
+    return np.sqrt(var)
+
+
+def offset_sensitivity(
+    model: Any, samples: BRDFSamples, free_k: list[str], config: Any
+) -> dict[str, np.ndarray]:
+    """∂k/∂δ: the change of each free per-band k when every sample of its band gets an
+    additive offset ``δ / cos θi_eff`` (the stray-light pattern, :func:`stray_offset_error`),
+    for the weighted linear least squares that determines the k's at the fitted σ, τ.
+    Returns ``{name: (31,)}``.
+    """
+    from gonio.simulator.cornell import BANDS_NM, effective_cos
+
+    nb = len(BANDS_NM)
+    key = np.round(np.c_[samples.wi, samples.wo], 12)
+    _u, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    wi, wo = samples.wi[first], samples.wo[first]
+    zero = {k: 0.0 for k in ("k_dd", "k_udf", "k_uds", "k_fs")}
+    base = {**model.params, **zero, "d_omega_i": None}
+    basis = [
+        np.asarray(type(model)(**{**base, k: 1.0})(wi, wo), float).reshape(len(wi), -1)
+        for k in free_k
+    ]
+    band = np.clip(np.rint((samples.wavelength_nm - BANDS_NM[0]) / 10.0).astype(int), 0, nb - 1)
+    w = 1.0 / samples.sigma if samples.has_sigma else np.ones(len(samples))
+    u = 1.0 / effective_cos(samples.wi, config)
+    out = {k: np.zeros(nb) for k in free_k}
+    for b in range(nb):
+        rows = np.flatnonzero(band == b)
+        if rows.size == 0:
+            continue
+        a = np.stack([bs[inv[rows], min(b, bs.shape[1] - 1)] for bs in basis], axis=1)
+        g = np.linalg.lstsq(a * w[rows, None], u[rows] * w[rows], rcond=None)[0]
+        for k, v in zip(free_k, g):
+            out[k][b] = v
+    return out
+
+
 def _cone_ratio(model: Any, samples: BRDFSamples, config: Any) -> np.ndarray:
     """Per row: instrument response / plain model (1 where the model is negligible)."""
     from gonio.simulator.cornell import BANDS_NM
@@ -301,9 +395,11 @@ def fit_li_torrance(
 
     The model's structure comes from the preset (components that are zero stay off, f0 / n,
     switches); the k's start flat at 0.5 and σ, τ at +20 % / −20 % of the table values
-    (``start`` overrides). ``fit_mode``: ``"auto"`` (both σ and τ with a mirror part, else σ
-    held at the table value), ``"both"``, ``"sigma_fixed"``, ``"tau_fixed"``. Rows where the
-    detector sees part of the mirror peak are excluded (:func:`_mirror_partial_mask`).
+    (``start`` overrides). ``fit_mode``: ``"auto"`` (both σ and τ with a mirror part that
+    the data see — at least one row with the detector cone inside the source's mirror
+    image —, else σ held at the table value), ``"both"``, ``"sigma_fixed"``,
+    ``"tau_fixed"``. Rows where the detector sees part of the mirror peak are excluded
+    (:func:`_mirror_partial_mask`).
 
     The instrument reads the BRDF averaged over the source (≈0.0005 sr) and detector cones;
     near a narrow lobe this differs from the model's point value by up to a few per cent,
@@ -325,12 +421,20 @@ def fit_li_torrance(
     cfg = config or CornellConfig()
     truth, template, fixed, mode, free_k, mirror = _truth_and_template(material, fit_mode, start)
     use = samples
-    n_excl = 0
+    n_excl = n_full = 0
     if mirror:
         bad = _mirror_partial_mask(samples, cfg)
+        n_full = int(_mirror_full_mask(samples, cfg).sum())
         n_excl = int(bad.sum())
         if n_excl:
             use = samples.subset(np.flatnonzero(~bad))
+        if fit_mode == "auto" and n_full == 0:
+            # the mirror part is the only term that sees σ alone (module docstring); a plan
+            # that never puts the detector inside the source's mirror image (e.g. the
+            # hemispherical grid) leaves σ and τ degenerate: hold σ as for the rough samples
+            truth, template, fixed, mode, free_k, mirror = _truth_and_template(
+                material, "sigma_fixed", start
+            )
     kw: dict[str, Any] = {"fixed": fixed} if fixed else {}
     if linear:
         # the k's enter eq. 2-14 (and the cone-corrected data) as pure scale factors:
@@ -350,6 +454,7 @@ def fit_li_torrance(
         "free_k": free_k,
         "mirror_part": mirror,
         "n_excluded_partial_mirror": n_excl,
+        "n_full_mirror_rows": n_full,
         "fixed": {k: (v if np.ndim(v) == 0 else list(v)) for k, v in fixed.items()},
         "truth_model": truth,
     }
@@ -357,7 +462,7 @@ def fit_li_torrance(
 
 
 def _summarise(
-    material, res, info, samples, seed, noise, timings, extra, ref_err=None
+    material, res, info, samples, seed, noise, timings, extra, ref_err=None, offset_err=None
 ) -> dict[str, Any]:
     truth = info["truth_model"]
     tp = truth.params
@@ -376,7 +481,8 @@ def _summarise(
     for k, v in stderr.items():
         if v is not None and "[" in k:
             b = int(k.split("[")[1].rstrip("]"))
-            stderr_total[k] = float(math.hypot(v, abs(fitp[k]) * ref_err[b]))
+            off = (offset_err or {}).get(k, 0.0)
+            stderr_total[k] = float(math.hypot(v, abs(fitp[k]) * ref_err[b], off))
         else:
             stderr_total[k] = v
     rel, within, within_fit = {}, {}, {}
@@ -430,6 +536,7 @@ def _summarise(
         "sigma_tau_history": info["history"],
         "mirror_part": info["mirror_part"],
         "n_excluded_partial_mirror": info["n_excluded_partial_mirror"],
+        "n_full_mirror_rows": info["n_full_mirror_rows"],
         "rms": float(res.rms),
         "rms_relative": float(res.rms_relative),
         "chi2_dof": float(res.chi2_dof) if math.isfinite(res.chi2_dof) else None,
@@ -623,7 +730,12 @@ def run_cornell_campaign(
         est = estimate_run_time(p, Timing(), None)
         est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
     else:
-        est_h = float(estimate_run_time(p, Timing(), t_int)["total_h"])
+        est = estimate_run_time(p, Timing(), t_int)
+        est_h = float(est["total_h"])
+        extra["estimated_real_instrument_breakdown_h"] = {
+            k: round(est[k] / 3600.0, 3) for k in ("move_s", "integration_s", "overhead_s")
+        }
+        extra["mean_integration_s"] = float(np.mean(t_int))
     extra["estimated_real_instrument_h"] = est_h
     if outp is not None:
         t = time.perf_counter()
@@ -651,9 +763,17 @@ def run_cornell_campaign(
         timings["fit"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t_start
         ref_err = reference_band_error(ref_obj, cfg) if noise_on else np.zeros(31)
+        offset_err = None
+        if noise_on:  # the stray-light estimate's additive offset, through each k
+            sd = stray_offset_error(ref_obj, cfg)
+            sens = offset_sensitivity(res_fit.model, samples, info["free_k"], cfg)
+            offset_err = {
+                f"{k}[{b}]": float(abs(g[b]) * sd[b]) for k, g in sens.items() for b in range(31)
+            }
         summary = _summarise(
-            material, res_fit, info, samples, seed, noise_on, timings, extra, ref_err
-        )
+            material, res_fit, info, samples, seed, noise_on, timings, extra, ref_err,
+            offset_err,
+        )  # fmt: skip
         if outp is not None:
             _write_json(outp / "fit.json", res_fit.to_dict())
     else:

@@ -10,9 +10,14 @@ Two instruments:
   90° = p, the ``target`` slide, the ND ``filter`` wheel and the rotary ``shutter``; stations
   in :mod:`gonio.simulator.bench`) and a spectrometer. The read sequence is the simulator's
   (:meth:`gonio.simulator.cornell.CornellInstrument.calibrate` and ``measure_raw``: a preview
-  for the integration time, then a dark and a signal read per polarisation), and the raw
+  for the integration time, then a signal and a dark read per polarisation in the order of
+  ``gonio.simulator.cornell.read_sequence``: one polariser turn and two shutter moves per
+  geometry), and the raw
   spectra are reduced with :func:`gonio.simulator.cornell.reduce_measurement`, so that
   against the fake devices the samples equal the in-process simulation's for the same seed.
+* :func:`open_served_rig` — the same rig opened on the devices that ``gonio devices serve``
+  runs in another process (every controller of the bench, :data:`CONTROLLER_GROUPS`), for
+  external driver scripts; :func:`cornell_fake_bench` is the bench behind both.
 * :class:`LBLDriverInstrument` — the LBL imaging gonioreflectometer (Ward 1992): ESP300 axes
   for the source arm and the sample rotation, a sample-changer axis and a PTP camera; it has
   the ``shoot(sample, theta_i, phi_i, seed)`` method of :func:`gonio.campaign.run`, which then
@@ -49,15 +54,18 @@ from gonio.drivers.interfaces import Axis, Camera, MotionController, Spectromete
 from gonio.samples import atomic_write_bytes
 
 __all__ = [
+    "CONTROLLER_GROUPS",
     "CORNELL_ACCESSORIES",
     "CORNELL_MOTORS",
     "Checkpoint",
     "CornellRig",
     "LBLDriverInstrument",
+    "cornell_fake_bench",
     "eeprom_coeffs",
     "fake_cornell_rig",
     "fake_lbl_rig",
     "fingerprint",
+    "open_served_rig",
     "run_cornell_measurements",
     "run_lbl_through_drivers",
 ]
@@ -66,6 +74,15 @@ __all__ = [
 CORNELL_MOTORS = ("arm", "turntable", "tilt")
 #: Accessory axes of the Cornell instrument.
 CORNELL_ACCESSORIES = ("polarizer", "target", "filter", "shutter")
+#: Stages of each fake bench, grouped by ESP300 controller (axes 1..3 of each, in order).
+CONTROLLER_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
+    "cornell": (
+        ("motors", CORNELL_MOTORS),
+        ("accessories", ("polarizer", "target", "filter")),
+        ("shutter", ("shutter",)),
+    ),
+    "lbl": (("motors", ("source", "sample", "tilt")), ("changer", ("changer",))),
+}
 
 
 def eeprom_coeffs(coeffs: Sequence[float]) -> tuple[float, ...]:
@@ -283,20 +300,23 @@ class _CornellProcedures:
     """The simulator's measurement procedures, performed on a :class:`CornellRig`.
 
     Mirrors ``CornellInstrument.auto_exposure``, ``measure_raw`` and ``calibrate`` read for
-    read (same targets, polarisations, integration times and order), so that keyed noise of
-    the fake spectrometer matches the in-process simulation.
+    read (same targets, polarisations, integration times and order:
+    ``gonio.simulator.cornell.read_sequence``, the preview's polariser alternating from
+    geometry to geometry by ``first_polarizer(index)``, so that a resumed run reads exactly
+    what an uninterrupted one does), so that keyed noise of the fake spectrometer matches
+    the in-process simulation.
     """
 
     def __init__(self, rig: CornellRig, config: Any) -> None:
         self.rig = rig
         self.c = config
 
-    def auto_exposure(self, target: str) -> tuple[float, bool]:
+    def auto_exposure(self, target: str, polarizer: str = "s") -> tuple[float, bool]:
         c = self.c
         room = c.exposure_target * (c.saturation_counts - c.bias_counts)
         filt = False
         for _ in range(2):
-            prev = self.rig.read(c.t_preview, polarizer="s", target=target, filter_in=filt)
+            prev = self.rig.read(c.t_preview, polarizer=polarizer, target=target, filter_in=filt)
             peak = max(float(np.max(prev)) - c.bias_counts - c.dark_rate * c.t_preview, 1.0)
             if float(np.max(prev)) >= c.saturation_counts and not filt:
                 filt = True
@@ -308,25 +328,41 @@ class _CornellProcedures:
             return float(np.clip(round(t, 6), c.t_min, c.t_max)), filt
         return c.t_min, True
 
-    def measure_raw(self, target: str, n_reads: int = 1) -> dict[str, dict[str, Any]]:
-        t, filt = self.auto_exposure(target)
-        out = {}
-        for q in ("s", "p"):
-            kw = dict(polarizer=q, target=target, filter_in=filt)
-            dark = np.mean([self.rig.read(t, shutter=False, **kw) for _ in range(n_reads)], 0)
-            sig = np.mean([self.rig.read(t, **kw) for _ in range(n_reads)], 0)
-            out[q] = {"signal": sig, "dark": dark, "t": t, "filter": int(filt)}
-        return out
+    def measure_raw(
+        self, target: str, n_reads: int = 1, first: str = "s"
+    ) -> dict[str, dict[str, Any]]:
+        from gonio.simulator.cornell import read_sequence
+
+        t, filt = self.auto_exposure(target, first)
+        reads: dict[tuple[str, bool], list] = {}
+        for q, shutter in read_sequence(first):
+            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
+            reads[(q, shutter)] = [self.rig.read(t, **kw) for _ in range(n_reads)]
+        return {
+            q: {
+                "signal": np.mean(reads[(q, True)], axis=0),
+                "dark": np.mean(reads[(q, False)], axis=0),
+                "t": t,
+                "filter": int(filt),
+            }
+            for q in ("s", "p")
+        }
 
     def calibrate(self, mode: str, wavelengths: NDArray) -> Any:
-        from gonio.simulator.cornell import Reference, _net_rate, forward
+        from gonio.simulator.cornell import (
+            Reference,
+            _net_rate,
+            effective_cos,
+            forward,
+            read_sequence,
+        )
         from gonio.simulator.spectra import spectralon_reflectance
 
         c = self.c
         if mode == "standard":
             pos = self.rig.move_motors(np.degrees(c.reference_angles()))
             target = "standard"
-            cos_ref = float(forward(np.radians(pos), c.kinematics)[0][2])
+            cos_ref = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
             scale = spectralon_reflectance(wavelengths) / math.pi * cos_ref
         elif mode == "direct":
             self.rig.move_motors([180.0, 0.0, 0.0])
@@ -335,13 +371,14 @@ class _CornellProcedures:
         else:
             raise ValueError(f"reference = {mode!r}: expected 'standard' or 'direct'")
         n = max(1, int(c.n_reference_reads))
-        raws = self.measure_raw(target, n_reads=n)
+        raws = self.measure_raw(target, n_reads=n, first="s")
+        traps: dict[tuple[str, bool], NDArray] = {}
+        for q, shutter in read_sequence("p"):
+            kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
+            traps[(q, shutter)] = np.mean([self.rig.read(c.t_max, **kw) for _ in range(n)], 0)
         stray, rate = {}, {}
         for q in ("s", "p"):
-            kw = dict(polarizer=q, target="beam_trap")
-            dark = np.mean([self.rig.read(c.t_max, shutter=False, **kw) for _ in range(n)], 0)
-            trap = np.mean([self.rig.read(c.t_max, **kw) for _ in range(n)], 0)
-            stray[q] = _net_rate(trap, dark, c.t_max, 1.0, c)[0]
+            stray[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
             r = raws[q]
             tr = c.filter_transmission if r["filter"] else 1.0
             rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
@@ -397,8 +434,9 @@ def run_cornell_measurements(
     """Measure every geometry of ``angles_deg`` (N, 3 motor angles, degrees, in order).
 
     Calibrates first (or reloads the reference from ``reference_path``), then for each
-    geometry not already in ``checkpoint``: move, read (preview, dark and signal per
-    polarisation), reduce to 31 bands, record. A device error on a geometry (after the
+    geometry not already in ``checkpoint``: move, read (preview, signal and dark per
+    polarisation, the preview's polariser alternating by geometry index), reduce to 31
+    bands, record. A device error on a geometry (after the
     drivers' own retries) is retried ``retries`` times from the move on; then it propagates
     (the checkpoint is flushed first, so a later call resumes).
 
@@ -408,7 +446,14 @@ def run_cornell_measurements(
     ``Reference`` used).
     """
     from gonio.drivers.errors import DeviceError
-    from gonio.simulator.cornell import BANDS_NM, CornellConfig, forward, reduce_measurement
+    from gonio.simulator.cornell import (
+        BANDS_NM,
+        CornellConfig,
+        effective_cos,
+        first_polarizer,
+        forward,
+        reduce_measurement,
+    )
 
     c = config or CornellConfig()
     ang = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
@@ -431,13 +476,13 @@ def run_cornell_measurements(
             for attempt in range(retries + 1):
                 try:
                     pos = rig.move_motors(ang[j])
-                    raws = proc.measure_raw("sample")
+                    raws = proc.measure_raw("sample", first=first_polarizer(j))
                     break
                 except DeviceError:
                     if attempt == retries:
                         raise
                     rig.forget_positions()
-            ci = float(forward(np.radians(pos), c.kinematics)[0][2])
+            ci = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
             v, s, sat = reduce_measurement(raws, ref, ci, c, BANDS_NM)
             rec = {
                 "value": v,
@@ -600,6 +645,56 @@ def run_lbl_through_drivers(
 
 
 # ----------------------------------------------------------------------------- fake rigs
+def cornell_fake_bench(
+    material: Any = "garnet_red_paint",
+    *,
+    seed: int = 0,
+    noise: bool = True,
+    config: Any = None,
+    time_scale: float = 1e4,
+    prime: ArrayLike | None = None,
+) -> tuple[Any, Any]:
+    """The simulated bench behind the Cornell fakes: ``(bench, instrument)``.
+
+    All seven stages of ``gonio.simulator.bench`` (the motors ``arm``, ``turntable``,
+    ``tilt``; the accessories ``polarizer``, ``target``, ``filter``, ``shutter``) without
+    backlash or positioning noise, a 1024-pixel spectrometer with the wavelength
+    coefficients its EEPROM can hold (:func:`eeprom_coeffs`), rendering
+    ``CornellInstrument(material, config, noise, rng=seed).spectrum_render`` through the
+    accessory stations. ``material``: a preset name, a BRDF, or ``None`` (Lambertian).
+    With the same ``seed`` a campaign on this bench reads the same keyed noise as
+    :func:`gonio.simulator.cornell.simulate_campaign` in-process. ``prime`` (N, 3 motor
+    angles, radians) precomputes the simulator's cone-averaged BRDF there (speed only).
+    """
+    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
+    from gonio.simulator.cornell import CornellConfig, CornellInstrument
+
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed = {seed!r}: expected a non-negative integer")
+    cfg = config or CornellConfig()
+    cfg = replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
+    sample = material
+    if sample is None:
+        from gonio import brdf
+
+        sample = brdf.create("lambert")
+    inst = CornellInstrument(sample, config=cfg, noise=noise, rng=int(seed))
+    if prime is not None:
+        inst.prime(np.asarray(prime, dtype=np.float64).reshape(-1, 3))
+    stages = [Stage(name, **kw) for name, kw in stage_table["cornell"]]
+    bench = Bench(
+        stages,
+        time_scale=time_scale,
+        spectrum_render=cornell_spectrum_render(inst.spectrum_render),
+        wavelength_coeffs=tuple(cfg.wavelength_coeffs),
+        instrument="cornell",
+        material=material if isinstance(material, str) else None,
+        n_pixels=int(cfg.n_pixels),
+    )
+    return bench, inst
+
+
 @contextlib.contextmanager
 def fake_cornell_rig(
     material: Any = "garnet_red_paint",
@@ -614,17 +709,13 @@ def fake_cornell_rig(
 ) -> Iterator[tuple[CornellRig, dict[str, Any]]]:
     """The Cornell instrument on fake devices: ``(rig, parts)``.
 
-    Three fake ESP300 controllers on pseudo-terminals (motors; polariser, target slide and
-    filter wheel; shutter) and a fake USB2000+ (1024 pixels, the simulator's wavelength
-    calibration) on the fake pyusb backend, all on one simulated bench running
-    ``time_scale`` times faster than real time, whose spectrometer renders
-    ``CornellInstrument(material, config, noise, rng=seed).spectrum_render`` (with the
-    wavelength coefficients the EEPROM can hold, :func:`eeprom_coeffs`). The rig is
-    opened with the real drivers. ``faults`` maps ``"esp300"`` / ``"usb2000plus"`` to
-    ``gonio.drivers.fake.faults.Faults`` objects. ``prime`` (N, 3 motor angles, radians)
-    precomputes the simulator's cone-averaged BRDF at those poses (a simulator-side cache;
-    it does not change any value). ``device_timeout``: the drivers' reply timeout (s).
-    ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
+    Three fake ESP300 controllers on pseudo-terminals (:data:`CONTROLLER_GROUPS`: motors;
+    polariser, target slide and filter wheel; shutter) and a fake USB2000+ on the fake pyusb
+    backend, all on :func:`cornell_fake_bench` (``material``, ``seed``, ``noise``,
+    ``config``, ``time_scale``, ``prime``). The rig is opened with the real drivers.
+    ``faults`` maps ``"esp300"`` (the motor controller) / ``"usb2000plus"`` to
+    ``gonio.drivers.fake.faults.Faults`` objects. ``device_timeout``: the drivers' reply
+    timeout (s). ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
     ``instrument`` (the simulator behind the spectrometer), ``controllers``.
     """
     from gonio.drivers.esp300 import ESP300
@@ -632,27 +723,11 @@ def fake_cornell_rig(
     from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.fake.faults import Faults
     from gonio.drivers.usb2000 import USB2000Plus
-    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
-    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
-    from gonio.simulator.cornell import CornellConfig, CornellInstrument
 
-    cfg = config or CornellConfig()
-    cfg = replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
-    inst = CornellInstrument(material, config=cfg, noise=noise, rng=seed)
-    if prime is not None:
-        inst.prime(np.asarray(prime, dtype=np.float64).reshape(-1, 3))
-    stages = [Stage(name, **kw) for name, kw in stage_table["cornell"]]
-    bench = Bench(
-        stages,
-        time_scale=time_scale,
-        spectrum_render=cornell_spectrum_render(inst.spectrum_render),
-        wavelength_coeffs=tuple(cfg.wavelength_coeffs),
-        instrument="cornell",
-        material=material if isinstance(material, str) else None,
-        n_pixels=int(cfg.n_pixels),
+    bench, inst = cornell_fake_bench(
+        material, seed=seed, noise=noise, config=config, time_scale=time_scale, prime=prime
     )
     faults = dict(faults or {})
-    groups = [("arm", "turntable", "tilt"), ("polarizer", "target", "filter"), ("shutter",)]
     servers: list[Any] = []
     ctls: list[Any] = []
     name = fakeusb.install(bench)
@@ -660,7 +735,7 @@ def fake_cornell_rig(
     try:
         if "usb2000plus" in faults:
             fakeusb.devices(name)["usb2000plus"].faults = faults["usb2000plus"]
-        for k, g in enumerate(groups):
+        for k, (_role, g) in enumerate(CONTROLLER_GROUPS["cornell"]):
             f = faults.get("esp300") if k == 0 else None
             srv = FakeESP300Server(bench, axes=list(g), faults=f or Faults()).start()
             servers.append(srv)
@@ -694,6 +769,76 @@ def fake_cornell_rig(
         for srv in servers:
             with contextlib.suppress(Exception):
                 srv.stop()
+        fakeusb.uninstall(name)
+
+
+@contextlib.contextmanager
+def open_served_rig(
+    records: Sequence[Mapping[str, Any]],
+    *,
+    via: str = "pty",
+    device_timeout: float = 2.0,
+) -> Iterator[tuple[Any, dict[str, Any]]]:
+    """Open, with the real drivers, the devices that ``gonio devices serve --json`` printed.
+
+    ``records``: the JSON objects of its output lines (one per device: every ``esp300``
+    controller with its ``axes`` {"1": stage name, ...}, the ``usb2000plus`` and the
+    ``ptp`` camera with the ``usb_server`` address of the fake USB bus). ``via``: reach the
+    ESP300s by their pseudo-terminal (``"pty"``) or by TCP (``"tcp"``). Yields
+    ``(rig, parts)``: for a Cornell bench (``arm`` among the axes) ``rig`` is a
+    :class:`CornellRig` over all seven axes and the spectrometer, ready for
+    :func:`run_cornell_measurements`; otherwise a dict ``{"axes": {name: Axis},
+    "camera": PTPCamera}``. ``parts``: ``controllers``, ``usb`` (the pyusb backend name
+    connected to the served bus). Everything is closed on exit.
+
+    Example (an external driver script)::
+
+        # shell: gonio devices serve --instrument cornell --material laser_paper --seed 2 --json
+        with open_served_rig([json.loads(line) for line in lines]) as (rig, _):
+            res = run_cornell_measurements(rig, angles_deg)
+    """
+    from gonio.drivers.esp300 import ESP300
+    from gonio.drivers.fake import usb as fakeusb
+
+    if via not in ("pty", "tcp"):
+        raise ValueError(f"via = {via!r}: expected 'pty' or 'tcp'")
+    recs = [dict(r) for r in records]
+    esps = [r for r in recs if r.get("device") == "esp300"]
+    usbs = [r for r in recs if r.get("device") in ("usb2000plus", "ptp")]
+    if not esps:
+        raise ValueError("records: expected at least one 'esp300' record")
+    if not usbs:
+        raise ValueError("records: expected a 'usb2000plus' or 'ptp' record (the USB bus)")
+    ctls: list[Any] = []
+    dev: Any = None
+    name = fakeusb.connect(str(usbs[0]["usb_server"]))
+    try:
+        axes: dict[str, Axis] = {}
+        for r in esps:
+            port = r["port"] if via == "pty" else r["url"]
+            amap = {str(n): int(i) for i, n in r["axes"].items()}
+            ctl = ESP300.open(port, axes=amap, timeout=device_timeout)
+            ctls.append(ctl)
+            ctl.enable()
+            axes.update(ctl.axes)
+        if "arm" in axes:
+            from gonio.drivers.usb2000 import USB2000Plus
+
+            dev = USB2000Plus.open(name, n_pixels=None, timeout=max(device_timeout, 0.5))
+            rig: Any = CornellRig(axes, dev)
+        else:
+            from gonio.drivers.ptp import PTPCamera
+
+            dev = PTPCamera.open(name)
+            rig = {"axes": axes, "camera": dev}
+        yield rig, {"controllers": ctls, "usb": name}
+    finally:
+        if dev is not None:
+            with contextlib.suppress(Exception):
+                dev.close()
+        for ctl in ctls:
+            with contextlib.suppress(Exception):
+                ctl.close()
         fakeusb.uninstall(name)
 
 

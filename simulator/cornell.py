@@ -30,7 +30,14 @@ With the detector cone inside the source image the peak is ``ρ / (Ω_s cos θi)
 ``exp(−g)/dω_i`` top hat with ``dω_i = Ω_s``. The double integral uses an equal-area product
 Gauss rule per cone; it is skipped (centre value used) when the BRDF changes by less than
 ``skip_tol`` (relative) between the centre and the rims of both cones — the lobe is then much
-wider than the source.
+wider than the source. The shortcut is off by default (``skip_tol = 0``: every pose is
+integrated): its error must stay far below the noise even after a fit averages thousands of
+samples, and it does not pay. With ``1e-3`` the skipped poses read the centre value where the
+cone average differs by up to 1e-3 (with the same sign along a lobe flank), which biased τ of
+a noisy 240-geometry garnet_red_paint fit by 3.5 of its standard errors (noise-free data
+with the noisy run's weights: τ 8.20044 instead of 8.2; with ``1e-4``, ``1e-5`` or ``0``:
+8.200000); at ``1e-5`` the rim estimate of the error is itself off by a factor 4, and a
+full hemispherical campaign took as long with the check as without it.
 
 Raw counts per pixel: ``bias + t·(dark + T_filter·(K·P(λ)·η_q(λ)·f_conv(λ) + stray))`` with
 shot noise (Poisson in electrons), Gaussian read noise, 16-bit clipping; ``P`` the halogen
@@ -84,13 +91,16 @@ __all__ = [
     "Timing",
     "accuracy_check",
     "bench_renderers",
+    "effective_cos",
     "estimate_run_time",
+    "first_polarizer",
     "forward",
     "hemispherical_plan",
     "incidence_plane_plan",
     "inverse",
     "order_plan",
     "read_plan_csv",
+    "read_sequence",
     "reduce_measurement",
     "simulate_campaign",
 ]
@@ -147,7 +157,7 @@ class CornellConfig:
     exposure_target: float = 0.7  # fraction of the counts above bias aimed at
     quad_rings: int = 3
     quad_phi: int = 8
-    skip_tol: float = 1e-3
+    skip_tol: float = 0.0  # convolution shortcut tolerance; 0 = off (module docstring: why)
     n_reference_reads: int = 16  # reads averaged for the reference (its noise is common to all)
 
     def __post_init__(self) -> None:
@@ -230,6 +240,22 @@ def _alpha(omega: float) -> float:
     return math.acos(1.0 - omega / (2.0 * math.pi))
 
 
+def effective_cos(wi: ArrayLike, config: CornellConfig | None = None) -> NDArray[np.float64]:
+    """Effective cosine of incidence of the source cone around ``wi`` (..., 3): the mean of
+    ``max(cos θ, 0)`` over the cone (the instrument's quadrature rule), i.e. the irradiance
+    per unit source radiance and solid angle. It replaces the centre's cos θi wherever the
+    measurement divides by the irradiance (the standard's signal, the reduction, the cone
+    average), so that a Lambertian sample reads exactly ρ/π against either reference (the
+    centre cosine is higher by about α²/4 = 4e-5 for the 0.0005 sr source).
+    """
+    c = config or CornellConfig()
+    w = np.asarray(wi, dtype=np.float64)
+    flat = w.reshape(-1, 3)
+    r, phi, wt = _cone_rule(_alpha(c.source_solid_angle), c.quad_rings, c.quad_phi)
+    pts = _cone_points(flat, r, phi)
+    return (np.clip(pts[:, :, 2], 0.0, None) @ wt).reshape(w.shape[:-1])
+
+
 def _lens_area(d: NDArray, r1: float, r2: float) -> NDArray:
     """Area shared by two discs of radii r1, r2 whose centres are d apart."""
     d = np.asarray(d, dtype=np.float64)
@@ -257,6 +283,25 @@ def _hat_projector(wl_key: tuple[float, ...], bands_key: tuple[float, ...]):
     hat = np.clip(1.0 - np.abs(wl[use, None] - bands[None, :]) / step, 0.0, None)
     proj = np.linalg.pinv(hat)  # (n_bands, n_used)
     return use, proj
+
+
+def read_sequence(first: str = "s") -> tuple[tuple[str, bool], ...]:
+    """Order of the dark/signal reads of one geometry after the preview (shutter open,
+    polariser ``first``): ``(polariser, shutter open)`` pairs — signal and dark through
+    ``first``, then dark and signal through the other polariser. The shutter moves twice
+    and the polariser once; the geometry ends open on the other polariser, where the next
+    geometry's preview (``first`` alternating) reads. Shared by the simulator and the
+    runner through the drivers (``gonio.hardware``), so their keyed noise matches.
+    """
+    if first not in _POL:
+        raise ValueError(f"first = {first!r}: expected 's' or 'p'")
+    other = "p" if first == "s" else "s"
+    return ((first, True), (first, False), (other, False), (other, True))
+
+
+def first_polarizer(index: int) -> str:
+    """Polariser of the preview of geometry ``index`` of a campaign (alternating)."""
+    return "s" if int(index) % 2 == 0 else "p"
 
 
 # ----------------------------------------------------------------------------- reduction
@@ -300,6 +345,8 @@ def reduce_measurement(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], bool]:
     """Raw spectra of one geometry → ``(BRDF per band, standard error per band, saturated)``.
 
+    ``cos_theta_i``: the effective cosine of incidence (:func:`effective_cos` of the
+    incidence direction; the centre's cos θi would read a Lambertian 4e-5 high).
     ``reads[q]`` for ``q`` in ``("s", "p")`` holds ``signal`` and ``dark`` (counts per pixel),
     ``t`` (integration time, s) and ``filter`` (0 or 1). Pure function: the campaign runner
     that goes through the drivers calls it with the spectra it read.
@@ -411,7 +458,9 @@ class CornellInstrument:
     def expected_brdf(
         self, angles: ArrayLike, *, convolve: bool | None = None, brdf: BRDF | None = None
     ) -> NDArray[np.float64]:
-        """Cone-averaged BRDF the instrument measures at motor ``angles`` (N, 3).
+        """Cone-averaged BRDF the instrument measures at motor ``angles`` (N, 3):
+        ``∫∫ f cos θ dω_s dω_d / (Ω_d ∫ cos θ dω_s)`` over the source and detector cones
+        (the reduction divides by the effective cosine, :func:`effective_cos`).
 
         Shape ``(N,)`` for a grey sample, ``(N, n_bands)`` for a spectral one (the sample's
         bands). ``convolve``: None = adaptive skip (``config.skip_tol``), True = always
@@ -420,7 +469,7 @@ class CornellInstrument:
         m = brdf or self.sample
         a = np.atleast_2d(np.asarray(angles, dtype=np.float64))
         wi, wo = forward(a, self.config.kinematics)
-        ci = wi[:, 2]
+        ci = effective_cos(wi, self.config)  # the irradiance the cone average divides by
         fc = m.evaluate_unchecked(wi, wo)
         out = np.array(fc, dtype=np.float64, copy=True)
         if convolve is not False:
@@ -469,7 +518,7 @@ class CornellInstrument:
         return out
 
     def _conv_at(self, angles: NDArray) -> tuple[NDArray, float]:
-        """Cone-averaged BRDF and cos θi at one pose (cached by the pose)."""
+        """Cone-averaged BRDF and effective cos θi at one pose (cached by the pose)."""
         key = tuple(np.round(np.degrees(angles), 6).tolist())
         v = self._conv_cache.get(key)
         if v is None:
@@ -481,7 +530,7 @@ class CornellInstrument:
         """Precompute (vectorised) the cone-averaged BRDF at many poses before reading them."""
         a = np.atleast_2d(np.asarray(angles, dtype=np.float64))
         vals = self.expected_brdf(a)
-        ci = forward(a, self.config.kinematics)[0][:, 2]
+        ci = effective_cos(forward(a, self.config.kinematics)[0], self.config)
         if len(self._conv_cache) > 200_000:
             self._conv_cache.clear()
         for ang, v, c in zip(a, vals, ci):
@@ -542,7 +591,8 @@ class CornellInstrument:
             sig = k * self._f_pixels(fconv, wl) * max(ci, 0.0)
         elif target == TARGETS["standard"]:
             wi, _ = forward(ang, c.kinematics)
-            sig = k * spectralon_reflectance(wl) / math.pi * max(float(wi[2]), 0.0)
+            ce = float(effective_cos(wi, c))  # the standard sees the whole source cone too
+            sig = k * spectralon_reflectance(wl) / math.pi * ce
         elif target == TARGETS["direct"]:
             sig = k / c.source_solid_angle
         else:
@@ -612,13 +662,20 @@ class CornellInstrument:
         return self.spectrum_render(pos, integration_time_s)
 
     # ------------------------------------------------------------------ procedures
-    def auto_exposure(self, target: str = "sample") -> tuple[float, bool]:
-        """Preview read → ``(integration time, filter in)`` aiming at ``exposure_target``."""
+    def auto_exposure(self, target: str = "sample", polarizer: str = "s") -> tuple[float, bool]:
+        """Preview read → ``(integration time, filter in)`` aiming at ``exposure_target``.
+
+        The preview is read through ``polarizer`` (the one in place, so that it need not
+        turn); the longer time is then the one of the brighter polarisation within a few
+        per cent (the detector's s/p responses differ little), well inside the head room.
+        """
+        if polarizer not in _POL:
+            raise ValueError(f"polarizer = {polarizer!r}: expected 's' or 'p'")
         c = self.config
         room = c.exposure_target * (c.saturation_counts - c.bias_counts)
         filt = False
         for _ in range(2):
-            prev = self.read(c.t_preview, polarizer="s", target=target, filter_in=filt)
+            prev = self.read(c.t_preview, polarizer=polarizer, target=target, filter_in=filt)
             peak = max(float(np.max(prev)) - c.bias_counts - c.dark_rate * c.t_preview, 1.0)
             if float(np.max(prev)) >= c.saturation_counts and not filt:
                 filt = True
@@ -630,19 +687,30 @@ class CornellInstrument:
             return float(np.clip(round(t, 6), c.t_min, c.t_max)), filt
         return c.t_min, True
 
-    def measure_raw(self, target: str = "sample", n_reads: int = 1) -> dict[str, dict[str, Any]]:
-        """The reads of one geometry: preview, then dark + signal for each polarisation.
+    def measure_raw(
+        self, target: str = "sample", n_reads: int = 1, first: str = "s"
+    ) -> dict[str, dict[str, Any]]:
+        """The reads of one geometry (:func:`read_sequence`): a preview through the
+        polariser ``first``, signal and dark through it, then dark and signal through the
+        other one — two shutter moves and one polariser turn per geometry. Campaigns
+        alternate ``first`` from geometry to geometry, so the polariser never turns back.
 
         With ``n_reads > 1`` each dark and signal spectrum is the mean of that many reads.
         """
-        t, filt = self.auto_exposure(target)
-        out = {}
-        for q in ("s", "p"):
-            kw = dict(polarizer=q, target=target, filter_in=filt)
-            dark = np.mean([self.read(t, shutter=False, **kw) for _ in range(n_reads)], axis=0)
-            sig = np.mean([self.read(t, **kw) for _ in range(n_reads)], axis=0)
-            out[q] = {"signal": sig, "dark": dark, "t": t, "filter": int(filt)}
-        return out
+        t, filt = self.auto_exposure(target, first)
+        reads: dict[tuple[str, bool], list] = {}
+        for q, shutter in read_sequence(first):
+            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
+            reads[(q, shutter)] = [self.read(t, **kw) for _ in range(n_reads)]
+        return {
+            q: {
+                "signal": np.mean(reads[(q, True)], axis=0),
+                "dark": np.mean(reads[(q, False)], axis=0),
+                "t": t,
+                "filter": int(filt),
+            }
+            for q in ("s", "p")
+        }
 
     def calibrate(self, mode: str = "standard") -> Reference:
         """Reference measurement: the standard at the reference pose or the direct beam, plus
@@ -653,7 +721,7 @@ class CornellInstrument:
         if mode == "standard":
             self.move_to(c.reference_angles())
             target = "standard"
-            cos_ref = float(forward(self.angles, c.kinematics)[0][2])
+            cos_ref = float(effective_cos(forward(self.angles, c.kinematics)[0], c))
             scale = spectralon_reflectance(wl) / math.pi * cos_ref
         elif mode == "direct":
             self.move_to(np.array([np.pi, 0.0, 0.0]))
@@ -661,15 +729,16 @@ class CornellInstrument:
             scale = np.full(wl.shape, 1.0 / c.omega_nominal)
         else:
             raise ValueError(f"reference mode = {mode!r}: expected 'standard' or 'direct'")
-        raws = self.measure_raw(target, n_reads=max(1, int(c.n_reference_reads)))
-        # stray light: beam trap at t_max, averaged like the reference
-        stray, rate = {}, {}
         n_avg = max(1, int(c.n_reference_reads))
+        raws = self.measure_raw(target, n_reads=n_avg, first="s")  # ends on "p"
+        # stray light: beam trap at t_max, averaged like the reference (ends on "s", open)
+        traps: dict[tuple[str, bool], NDArray] = {}
+        for q, shutter in read_sequence("p"):
+            kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
+            traps[(q, shutter)] = np.mean([self.read(c.t_max, **kw) for _ in range(n_avg)], 0)
+        stray, rate = {}, {}
         for q in ("s", "p"):
-            kw = dict(polarizer=q, target="beam_trap")
-            dark = np.mean([self.read(c.t_max, shutter=False, **kw) for _ in range(n_avg)], 0)
-            trap = np.mean([self.read(c.t_max, **kw) for _ in range(n_avg)], 0)
-            stray[q] = _net_rate(trap, dark, c.t_max, 1.0, c)[0]
+            stray[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
             r = raws[q]
             tr = c.filter_transmission if r["filter"] else 1.0
             rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
@@ -729,10 +798,11 @@ def simulate_campaign(
     t_int = np.empty(len(p))
     n_sat = 0
     wi, wo = forward(p.angles, inst.config.kinematics)
+    ce = effective_cos(wi, inst.config)
     for j, ang in enumerate(p.angles):
         inst.move_to(ang)
-        raws = inst.measure_raw("sample")
-        v, s, sat = reduce_measurement(raws, ref, float(wi[j, 2]), inst.config, wl_bands)
+        raws = inst.measure_raw("sample", first=first_polarizer(j))
+        v, s, sat = reduce_measurement(raws, ref, float(ce[j]), inst.config, wl_bands)
         vals[j], sigs[j], t_int[j] = v, s, raws["s"]["t"]
         n_sat += int(sat)
     if not noise:

@@ -45,6 +45,20 @@ class Timing:
     """Speeds and overheads of the real instrument (assumed values; the paper gives none).
 
     Speeds in rad/s (arm, turntable, tilt), acceleration in rad/s², times in s.
+
+    The paper (000_f6f2403beaa91ee8.txt §5.1) gives only the total: "about 11 hours for full
+    hemispherical sampling" (8 × 441 positions, i.e. ≈ 11 s per position). With these values
+    a position costs ≈ 1.1 s of motion (ordered plan), 2.8 s of fixed overhead (settling,
+    preview, one polariser turn, four read-outs) and four integrations (a signal and a
+    dark per polarisation) whose length the auto-exposure sets from the sample's brightness
+    (70 % of full scale at the brightest pixel; the simulated detector's sensitivity,
+    ``CornellConfig.standard_peak_rate``, is itself an assumption). Measured estimates for
+    the 3499 reachable positions: laser paper 7.2 h (mean integration 0.89 s), aluminized
+    ground glass 8.1 h (1.10 s), garnet red paint 18.2 h (3.7 s: dark in the blue and
+    green), aluminized non-glare glass 30 h (6.8 s: its off-specular BRDF is low; the paper
+    measured that sample with the incidence plan). So the paper's 11 h lies within the range
+    for the samples it measured hemispherically; the gap for a given sample is set by the
+    integration times, not by the stage speeds.
     """
 
     speeds: tuple[float, float, float] = tuple(np.radians([5.0, 10.0, 10.0]))
@@ -306,8 +320,9 @@ def estimate_run_time(
     """Estimated real-instrument time (s) for the reachable rows in the plan's order.
 
     Per measurement: the move (slowest axis, trapezoidal profile), settling, a preview read for
-    the exposure, then for each of the two polarisations a polariser change, a dark read and a
-    signal read (integration time + read overhead each). ``integration_s`` gives one
+    the exposure, then a signal and a dark read through the polariser in place, one
+    polariser change, a dark and a signal read through the other one (integration time +
+    read overhead each; ``gonio.simulator.cornell.read_sequence``). ``integration_s`` gives one
     integration time per reachable row (e.g. from a simulation's auto-exposure); default
     ``timing.default_integration_s``.
     """
@@ -329,7 +344,8 @@ def estimate_run_time(
         timing.settle_s
         + timing.preview_s
         + timing.read_overhead_s
-        + 2.0 * (timing.polarizer_change_s + 2.0 * (t_int + timing.read_overhead_s))
+        + timing.polarizer_change_s
+        + 4.0 * (t_int + timing.read_overhead_s)
     )
     total = float(moves.sum() + per.sum())
     return {

@@ -93,6 +93,24 @@ def test_sigma_and_tau_scaled_together_leave_a_rough_sample_unchanged():
     assert scan[0]["max_rel_change"] > 0.1  # the mirror part (eq. 4) sees sigma alone
 
 
+@pytest.mark.parametrize(
+    ("plan", "plan_kw", "mode"),
+    [
+        ("incidence", {"theta_i_deg": (60.0,)}, "both"),  # 1 deg steps: hits the mirror peak
+        ("hemispherical", {"theta_i_deg": (60.0,), "n": 7}, "sigma_fixed"),  # never inside it
+    ],
+)
+def test_auto_fits_sigma_only_where_the_plan_sees_the_mirror_part(plan, plan_kw, mode):
+    s = run_cornell_campaign(
+        "aluminized_non_glare_glass", plan=plan, plan_kw=plan_kw, noise=False, cone_corrections=1
+    )
+    assert s["fit_mode"] == mode
+    assert (s["n_full_mirror_rows"] > 0) == (mode == "both")
+    assert s["relative_error"]["sigma/tau"] < 0.02
+    if mode == "both":
+        assert max(s["relative_error"]["sigma"], s["relative_error"]["tau"]) < 0.02
+
+
 def test_module_entry_point(tmp_path, capsys):
     out = tmp_path / "s.json"
     rc = main(["--material", "laser_paper", "--max-geometries", "6", "--no-fit",
@@ -180,3 +198,47 @@ def test_default_cli_campaign_is_fast_and_accurate(tmp_path, capsys):
     # was 73 s on a quiet machine (261 s loaded) with finite-difference Jacobians over 94
     # parameters; about 1 s now. Generous bound for a loaded machine.
     assert js["timings_s"]["fit"] < 30
+
+
+def test_stray_offset_error_matches_the_scatter_of_the_stray_estimate():
+    """The beam-trap stray-light estimate leaves a per-band additive offset common to all
+    samples; its predicted standard error matches the scatter over reference measurements."""
+    from gonio.simulator.cornell import BANDS_NM, CornellInstrument, _hat_projector
+
+    from gonio.cornell_campaign import stray_offset_error
+
+    truth = CornellInstrument("lambert", noise=False, rng=0).calibrate("standard")
+    use, proj = _hat_projector(tuple(np.round(truth.wavelengths_nm, 9)), tuple(BANDS_NM))
+    offsets, preds = [], []
+    for seed in range(24):
+        inst = CornellInstrument("lambert", noise=True, rng=seed)
+        ref = inst.calibrate("standard")
+        d = 0.5 * sum((ref.stray[q] - truth.stray[q]) * ref.scale / ref.rate[q] for q in "sp")
+        offsets.append(proj @ d[use])
+        preds.append(stray_offset_error(ref, inst.config))
+    ratio = np.std(offsets, axis=0, ddof=1) / np.mean(preds, axis=0)
+    assert 0.75 < np.median(ratio) < 1.25, np.median(ratio)
+
+
+def test_offset_sensitivity_of_a_uniform_diffuse_k():
+    """k_udf/pi alone: an offset 1/cos_eff in every sample moves k_udf by pi * mean(1/cos_eff)."""
+    from gonio.simulator.cornell import BANDS_NM, CornellConfig, effective_cos
+
+    from gonio import brdf
+    from gonio.cornell_campaign import offset_sensitivity
+    from gonio.geometry import to_vector
+    from gonio.samples import BRDFSamples
+
+    cfg = CornellConfig()
+    m = brdf.create("li_torrance", k_dd=0.0, k_udf=np.full(31, 0.3), sigma=0.5, tau=2.5,
+                    wavelength_nm=BANDS_NM)  # fmt: skip
+    ti = np.radians([10.0, 35.0, 60.0, 75.0])
+    wi = to_vector(ti, 0.0)
+    wo = to_vector(np.radians(20.0), np.pi) * np.ones((4, 1))
+    n = len(wi)
+    s = BRDFSamples.from_directions(
+        np.repeat(wi, 31, axis=0), np.repeat(wo, 31, axis=0), np.full(31 * n, 0.3 / np.pi),
+        np.full(31 * n, 1e-3), wavelength_nm=np.tile(BANDS_NM, n),
+    )  # fmt: skip
+    g = offset_sensitivity(m, s, ["k_udf"], cfg)["k_udf"]
+    np.testing.assert_allclose(g, np.pi * np.mean(1 / effective_cos(wi, cfg)), rtol=1e-10)

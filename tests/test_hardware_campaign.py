@@ -115,6 +115,46 @@ def test_rig_reads_follow_the_accessories():
     assert rig.n_reads == 4
 
 
+class _CountingAxis:
+    """An Axis proxy that counts the moves it is asked for."""
+
+    def __init__(self, axis):
+        self.axis, self.moves = axis, 0
+
+    def move_to(self, pos):
+        self.moves += 1
+        self.axis.move_to(pos)
+
+    def __getattr__(self, name):
+        return getattr(self.axis, name)
+
+
+def test_each_geometry_turns_the_polarizer_once_and_the_shutter_twice():
+    from gonio.simulator.cornell import first_polarizer, read_sequence
+
+    from gonio.hardware import CornellRig, run_cornell_measurements
+
+    assert read_sequence("s") == (("s", True), ("s", False), ("p", False), ("p", True))
+    assert [first_polarizer(j) for j in range(4)] == ["s", "p", "s", "p"]
+    with pytest.raises(ValueError, match="first"):
+        read_sequence("x")
+    ang = np.array([[60.0, 10.0, 5.0], [62.0, 10.0, 5.0], [64.0, 12.0, 5.0], [66.0, 12.0, 6.0]])
+    snaps = []
+    with fake_cornell_rig("laser_paper", seed=1, noise=False) as (rig, _parts):
+        axes = {n: _CountingAxis(a) for n, a in rig.axes.items()}
+        counted = CornellRig(axes, rig.spectrometer)
+
+        def snap(j, n):
+            snaps.append({k: a.moves for k, a in axes.items()})
+
+        res = run_cornell_measurements(counted, ang, on_measurement=snap)
+    # geometries 1..3: one polariser turn and two shutter moves each (signal, dark | dark,
+    # signal), nothing else but the motors
+    d = {k: snaps[-1][k] - snaps[0][k] for k in axes}
+    assert (d["polarizer"], d["shutter"], d["target"], d["filter"]) == (3, 6, 0, 0), d
+    assert res["value"].shape == (4, 31) and np.all(res["value"] > 0)
+
+
 def test_lbl_campaign_through_drivers_matches_in_process_without_noise():
     """ESP300 source arm + sample rotation + changer, PTP camera: 16-bit frames reduced by the
     calibration pipeline give the in-process samples (noise off, fixed exposure)."""

@@ -1,4 +1,15 @@
-"""``gonio devices serve``: run the fake devices on a simulated bench until interrupted."""
+"""``gonio devices serve``: run the fake devices on a simulated bench until interrupted.
+
+Every ESP300 controller of the bench is served (``gonio.hardware.CONTROLLER_GROUPS``): for
+``--instrument cornell`` the motors (arm, turntable, tilt), the accessories (polariser,
+target slide, ND filter wheel) and the shutter, on three controllers, beside the USB2000+
+(1024 pixels, the simulator's EEPROM wavelength calibration) and the PTP camera on one fake
+USB bus; for ``lbl`` the source arm, sample rotation and tilt, and the sample changer.
+The Cornell bench is ``gonio.hardware.cornell_fake_bench(material, seed, noise)``, so an
+external driver script (``gonio.hardware.open_served_rig`` on the printed records, then
+``run_cornell_measurements``) measures the same samples as the in-process simulation with
+the same seed.
+"""
 
 from __future__ import annotations
 
@@ -32,6 +43,15 @@ def add_arguments(parser) -> None:
         "--link", default=None, help="also keep a symlink to the ESP300 pty at this path"
     )
     p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="noise seed of the simulated instrument (default 0; the in-process seed)",
+    )
+    p.add_argument(
+        "--noise", choices=("on", "off"), default="on", help="detector noise (default on)"
+    )
+    p.add_argument(
         "--json",
         action="store_true",
         help="one JSON object per device per line (flushed when ready)",
@@ -44,10 +64,13 @@ def _serve(args) -> int:
 
     from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.fake.usb import devices, install, serve_remote
+    from gonio.hardware import CONTROLLER_GROUPS, cornell_fake_bench
     from gonio.simulator.bench import Bench
 
     if args.time_scale <= 0:
         raise ValueError(f"--time-scale={args.time_scale!r}: expected a number > 0")
+    if args.seed < 0:
+        raise ValueError(f"--seed={args.seed!r}: expected an integer >= 0")
     if args.material is not None:
         from gonio import materials
 
@@ -55,21 +78,45 @@ def _serve(args) -> int:
             raise ValueError(
                 f"--material={args.material!r}: expected one of {', '.join(materials.names())}"
             )
-    bench = Bench.for_instrument(args.instrument, args.material, time_scale=args.time_scale)
-    server = FakeESP300Server(bench, tcp=args.tcp_port or True, link=args.link).start()
-    name = install(bench)
-    remote = serve_remote(name)
+    noise = args.noise == "on"
+    if args.instrument == "cornell":
+        bench, _inst = cornell_fake_bench(
+            args.material, seed=args.seed, noise=noise, time_scale=args.time_scale
+        )
+    else:
+        bench = Bench.for_instrument(
+            args.instrument, args.material, time_scale=args.time_scale, rng=args.seed,
+            noise=noise,
+        )  # fmt: skip
+    servers = []
+    records = []
+    try:
+        for k, (role, group) in enumerate(CONTROLLER_GROUPS[args.instrument]):
+            link = None
+            if args.link:
+                link = args.link if k == 0 else f"{args.link}{k + 1}"
+            tcp = (args.tcp_port or True) if k == 0 else True
+            srv = FakeESP300Server(bench, tcp=tcp, link=link, axes=list(group)).start()
+            servers.append(srv)
+            records.append(
+                {
+                    "device": "esp300",
+                    "controller": role,
+                    "port": srv.port,
+                    "tcp": srv.tcp_port,
+                    "url": srv.url,
+                    "link": link,
+                    "axes": {str(i): s.name for i, s in srv.firmware.axes.items()},
+                }
+            )
+        name = install(bench)
+        remote = serve_remote(name)
+    except BaseException:
+        for srv in servers:
+            srv.stop()
+        raise
     fakes = devices(name)
-    axes = {str(i): s.name for i, s in server.firmware.axes.items()}
-    records = [
-        {
-            "device": "esp300",
-            "port": server.port,
-            "tcp": server.tcp_port,
-            "url": server.url,
-            "link": args.link,
-            "axes": axes,
-        },
+    records += [
         {
             "device": "usb2000plus",
             "backend": name,
@@ -77,6 +124,7 @@ def _serve(args) -> int:
             "vendor": "0x2457",
             "product": "0x101e",
             "serial": fakes["usb2000plus"].serial,
+            "n_pixels": int(bench.n_pixels),
         },
         {
             "device": "ptp",
@@ -86,24 +134,37 @@ def _serve(args) -> int:
             "product": f"0x{fakes['ptp'].product:04x}",
             "serial": fakes["ptp"].serial,
         },
+        {
+            "device": "bench",
+            "instrument": args.instrument,
+            "material": args.material,
+            "seed": int(args.seed),
+            "noise": noise,
+            "time_scale": float(args.time_scale),
+            "stages": list(bench.stages),
+        },
     ]
     for rec in records:
         if args.json:
             print(json.dumps(rec), flush=True)
         elif rec["device"] == "esp300":
-            print(f"esp300       pty {rec['port']}   tcp {rec['url']}   axes {axes}", flush=True)
+            print(
+                f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
+                f"axes {rec['axes']}",
+                flush=True,
+            )
+        elif rec["device"] == "bench":
+            print(
+                f"bench: instrument {args.instrument}, material {args.material}, seed "
+                f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop",
+                flush=True,
+            )
         else:
             print(
                 f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
                 f"process: gonio.drivers.fake.usb.connect({remote.address!r})",
                 flush=True,
             )
-    if not args.json:
-        print(
-            f"bench: instrument {args.instrument}, material {args.material}, "
-            f"time x{args.time_scale:g}; Ctrl-C to stop",
-            flush=True,
-        )
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
@@ -113,7 +174,8 @@ def _serve(args) -> int:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
-        server.stop()
+        for srv in servers:
+            srv.stop()
         remote.close()
     return 0
 
@@ -121,7 +183,8 @@ def _serve(args) -> int:
 def run(args) -> int:
     if getattr(args, "action", None) != "serve":
         print(
-            "usage: gonio devices serve [--instrument lbl|cornell] [--material M] [--json]",
+            "usage: gonio devices serve [--instrument lbl|cornell] [--material M] [--seed N]"
+            " [--noise on|off] [--json]",
             file=sys.stderr,
         )
         return 2
