@@ -303,8 +303,11 @@ class _SimulatedLBL:
                 read_noise=s.read_noise / f,
                 dark_current=s.dark_current / f**2,
             )
-        if plan.d_over_r is not None:
-            kw["half_separation"] = plan.d_over_r * LBLInstrument().radius
+        if plan.d_over_r is not None:  # D = (D/R) · R at the instrument's mirror radius
+            import inspect
+
+            radius = inspect.signature(LBLInstrument).parameters["radius"].default
+            kw["half_separation"] = plan.d_over_r * radius
         self.inst = LBLInstrument(mirror=plan.mirror, **kw)
 
     def prepare(self, sample: Any = "standard") -> None:

@@ -20,9 +20,12 @@ Executors (:func:`run_sweep`): ``"inprocess"`` (default, no dependency), ``"proc
 (:class:`concurrent.futures.ProcessPoolExecutor`; a crashed pool is rebuilt and the unfinished
 tasks resubmitted) and ``"dask"`` (Dask distributed, the optional extra
 ``gonio[distributed]``; ``scheduler="tcp://host:port"`` or ``dask_local=N`` workers in a
-``LocalCluster``; Dask reschedules the tasks of a lost worker and ``retries`` re-runs failed
-ones). The gathered table (``results.csv`` / ``results.json``) holds only deterministic columns,
-in grid order, so every executor produces the same bytes; wall times go to ``timings.csv``.
+``LocalCluster`` made by :func:`dask_local_cluster` with :data:`DASK_CONFIG`; Dask reschedules
+the tasks of a lost worker, ``retries`` re-runs failed ones, and a cluster left without workers
+for ``no_workers_timeout`` seconds fails the waiting tasks instead of hanging). Tasks finished
+by an earlier run are read from their folders and never submitted. The gathered table
+(``results.csv`` / ``results.json``) holds only deterministic columns, in grid order, so
+every executor produces the same bytes; wall times go to ``timings.csv``.
 
 Task functions are looked up by name in a registry (:func:`register_task`; built in:
 ``"fit_preset"``, and ``"campaign"`` which runs :mod:`gonio.campaign` when it is installed) or
@@ -31,6 +34,7 @@ given as ``"package.module:function"``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import importlib
@@ -53,11 +57,13 @@ import numpy as np
 from gonio.samples import atomic_write_bytes
 
 __all__ = [
+    "DASK_CONFIG",
     "EXECUTORS",
     "SweepResult",
     "SweepSpec",
     "TaskFailed",
     "aggregate",
+    "dask_local_cluster",
     "expand",
     "get_task",
     "load_spec",
@@ -445,12 +451,9 @@ class _SingleThreadBLAS:
 
     def __enter__(self) -> _SingleThreadBLAS:
         self._restore: list[Callable[[], Any]] = []
-        try:
-            from threadpoolctl import threadpool_limits
-        except ImportError:
-            threadpool_limits = None
-        if threadpool_limits is not None:
-            lim = threadpool_limits(limits=1, user_api="blas")
+        controller = self._controller()
+        if controller is not None:
+            lim = controller.limit(limits=1, user_api="blas")
             self._restore.append(lim.restore_original_limits)
             return self
         for get, set_ in self._openblas():
@@ -463,6 +466,23 @@ class _SingleThreadBLAS:
     def __exit__(self, *exc: Any) -> None:
         for undo in reversed(self._restore):
             undo()
+
+    _CONTROLLER: Any = None
+
+    @classmethod
+    def _controller(cls) -> Any:
+        """One ``threadpoolctl.ThreadpoolController`` per process (scanning the loaded
+        libraries costs ~0.6 ms, a third of a no-op task), made after scipy's OpenBLAS is
+        loaded; ``None`` without threadpoolctl."""
+        if cls._CONTROLLER is None:
+            try:
+                from threadpoolctl import ThreadpoolController
+            except ImportError:
+                return None
+            import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, used by the fits)
+
+            cls._CONTROLLER = ThreadpoolController()
+        return cls._CONTROLLER
 
     @classmethod
     def _openblas(cls) -> list[tuple[Any, Any]]:
@@ -492,6 +512,50 @@ class _SingleThreadBLAS:
                     continue
                 break
         return found
+
+
+class _TaskMalloc:
+    """Context manager: glibc's default heap behaviour for the task inside a Dask worker.
+
+    A Dask nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (the
+    ``distributed.nanny.pre-spawn-environ`` default). Setting that variable also switches off
+    glibc's dynamic mmap threshold, so every array above 128 KiB is a fresh ``mmap`` whose pages
+    fault in again on each use: measured here, one campaign task ran 1.6-2.6x slower (16x the
+    minor page faults, 9x the system time) in such a process. When the variable is set, this
+    raises the mmap and trim thresholds (``mallopt``) for the task's duration and afterwards
+    restores the worker's settings and returns the freed memory (``malloc_trim``). A no-op
+    when the variable is unset (in-process, process pool, gonio's own LocalCluster) or without
+    glibc.
+    """
+
+    _M_TRIM_THRESHOLD = -1
+    _M_MMAP_THRESHOLD = -3
+
+    def __enter__(self) -> _TaskMalloc:
+        self._libc = None
+        trim = os.environ.get("MALLOC_TRIM_THRESHOLD_")
+        if not trim or not trim.isdigit():
+            return self
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None)
+            mallopt, malloc_trim = libc.mallopt, libc.malloc_trim
+        except (OSError, AttributeError):
+            return self
+        self._libc = (mallopt, malloc_trim, int(trim))
+        mallopt(self._M_MMAP_THRESHOLD, 32 * 1024 * 1024)  # glibc's dynamic maximum
+        mallopt(self._M_TRIM_THRESHOLD, 128 * 1024 * 1024)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._libc is None:
+            return
+        mallopt, malloc_trim, trim = self._libc
+        mmap = os.environ.get("MALLOC_MMAP_THRESHOLD_", "")
+        mallopt(self._M_MMAP_THRESHOLD, int(mmap) if mmap.isdigit() else 128 * 1024)
+        mallopt(self._M_TRIM_THRESHOLD, trim)
+        malloc_trim(0)
 
 
 def run_task(
@@ -524,7 +588,7 @@ def run_task(
     tmp.mkdir()
     try:
         t0 = time.perf_counter()
-        with _SingleThreadBLAS():
+        with _SingleThreadBLAS(), _TaskMalloc():
             metrics = _clean_metrics(fn(task, tmp), tid)
         wall = time.perf_counter() - t0
         summary = {
@@ -554,11 +618,33 @@ def run_task(
     return {**summary, "skipped": False}
 
 
-def _run_task_entry(task: dict, root: str, fn: TaskFn | str | None) -> dict:
+class _ByValue:
+    """A task function shipped to Dask workers as cloudpickle bytes.
+
+    Dask pickles a task's arguments with plain :mod:`pickle` (by reference), so a function
+    from a module the workers cannot import — a user's script, a test module registered with
+    ``cloudpickle.register_pickle_by_value`` — would fail to load there ("No module named
+    ..."); cloudpickle ships such functions by value.
+    """
+
+    def __init__(self, fn: TaskFn) -> None:
+        import cloudpickle
+
+        self.data = cloudpickle.dumps(fn)
+
+    def load(self) -> TaskFn:
+        import cloudpickle
+
+        return cloudpickle.loads(self.data)
+
+
+def _run_task_entry(task: dict, root: str, fn: TaskFn | str | _ByValue | None) -> dict:
     """Picklable entry point for worker processes: returns the summary or an error record."""
     import traceback
 
     try:
+        if isinstance(fn, _ByValue):
+            fn = fn.load()
         return run_task(task, root, fn)
     except Exception as exc:  # reported per task, the sweep carries on
         return {
@@ -636,42 +722,134 @@ def _run_process(tasks, root, fn, workers, retries, progress):
                 return
 
 
-def _dask_client(scheduler: str | None, dask_local: int | None):
+# Dask settings gonio applies to the clusters it starts (and that tests/benchmarks can use):
+DASK_CONFIG: dict[str, Any] = {
+    # SpecCluster closes a worker's nanny for good when no worker of that name is registered
+    # this long after a worker was removed. The timer is not cancelled when the nanny restarts
+    # the worker, so a timer left from an earlier worker death fires during a later restart and
+    # shuts the nanny down: the cluster ends with no workers and every queued task waits
+    # forever (the hang of the worker-loss tests; reproduced with two worker deaths 15 s apart,
+    # and a restart slower than 15 s on a loaded machine does the same). Nannies are gonio's
+    # own here: they restart their workers for the life of the cluster.
+    "distributed.deploy.lost-worker-timeout": "7 days",
+    # tasks waiting with no worker at all fail after this (the scheduler's side of the timeout)
+    "distributed.scheduler.no-workers-timeout": "60s",
+    # see _TaskMalloc: keep glibc's dynamic mmap threshold in the workers
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+}
+
+
+@contextlib.contextmanager
+def dask_local_cluster(n_workers: int = 2, **cluster_kwargs: Any) -> Iterator[Any]:
+    """A Dask ``LocalCluster`` of ``n_workers`` single-threaded processes and its ``Client``.
+
+    Runs with :data:`DASK_CONFIG` in force and restores this process's environment on exit
+    (a nanny writes its workers' ``pre-spawn-environ`` into the process that runs it, here
+    ours, on every worker (re)start). Closing is bounded by timeouts.
+
+    Examples
+    --------
+    >>> with dask_local_cluster(2) as client:  # doctest: +SKIP
+    ...     run_sweep(spec, "out", executor="dask", client=client)
+    """
     try:
+        import dask
         from distributed import Client, LocalCluster
     except ImportError:
-        raise ValueError(
-            "the Dask executor needs the optional dependency dask[distributed]; "
-            "install it with: pip install 'gonio[distributed]'"
-        ) from None
-    if scheduler:
-        return Client(scheduler), None
-    cluster = LocalCluster(
-        n_workers=int(dask_local or 2),
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=":0",
+        raise _no_dask() from None
+    if int(n_workers) < 1:
+        raise ValueError(f"n_workers must be >= 1, got {n_workers!r}")
+    environ = dict(os.environ)
+    kwargs = {"threads_per_worker": 1, "processes": True, "dashboard_address": ":0"}
+    kwargs.update(cluster_kwargs)
+    with dask.config.set(DASK_CONFIG):
+        cluster = LocalCluster(n_workers=int(n_workers), **kwargs)
+        try:
+            client = Client(cluster, timeout="60s")
+            try:
+                yield client
+            finally:
+                client.close(timeout=30)
+        finally:
+            cluster.close(timeout=60)
+            os.environ.clear()
+            os.environ.update(environ)
+
+
+def _no_dask() -> ValueError:
+    return ValueError(
+        "the Dask executor needs the optional dependency dask[distributed]; "
+        "install it with: pip install 'gonio[distributed]'"
     )
-    return Client(cluster), cluster
 
 
-def _run_dask(tasks, root, fn, client, progress):
-    from distributed import as_completed
+def _run_dask(tasks, root, fn, client, progress, no_workers_timeout):
+    """Submit every task; yield summaries (or error records) as they finish.
 
-    # Dask reschedules the tasks of a lost worker by itself (up to its allowed-failures
-    # setting); errors come back as records and run_sweep retries them
+    Bounded everywhere: waits poll every 2 s (or half the timeout); a result whose worker is
+    lost while it is fetched is fetched again after Dask recomputes it (the recomputation
+    finds the task's folder and returns at once); when the cluster has had no worker for
+    ``no_workers_timeout`` seconds, the remaining tasks are cancelled and reported as failed.
+    """
+    from distributed import wait
+
     futs = {}
+    ship = _ByValue(fn) if callable(fn) else fn
     for t in tasks:
         tid = task_id(t)
         key = f"gonio-sweep-{tid}-{uuid.uuid4().hex[:8]}"
-        futs[client.submit(_run_task_entry, t, root, fn, key=key)] = tid
-    for fut in as_completed(list(futs)):
-        try:
-            res = fut.result()
-        except Exception as exc:  # KilledWorker after too many lost workers, etc.
-            res = {"task_id": futs[fut], "error": f"{type(exc).__name__}: {exc}"}
-        progress(res)
-        yield res
+        futs[client.submit(_run_task_entry, t, root, ship, key=key, pure=False)] = tid
+    pending = set(futs)
+    poll = min(2.0, no_workers_timeout / 2)
+    no_workers_since: float | None = None
+    try:
+        while pending:
+            try:
+                done, _ = wait(list(pending), timeout=poll, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done = set()
+            for fut in done:
+                if fut.status == "finished":
+                    try:
+                        res = fut.result(timeout=30)
+                    except TimeoutError:  # its worker died during the fetch: recomputed
+                        continue
+                    except Exception as exc:
+                        res = {"task_id": futs[fut], "error": f"{type(exc).__name__}: {exc}"}
+                elif fut.status in ("error", "cancelled"):
+                    try:
+                        exc = fut.exception(timeout=30)
+                    except Exception as err:  # cancelled
+                        exc = err
+                    # KilledWorker: the task's worker died `allowed-failures` times
+                    res = {"task_id": futs[fut], "error": f"{type(exc).__name__}: {exc}"}
+                else:  # lost again meanwhile
+                    continue
+                pending.discard(fut)
+                progress(res)
+                yield res
+            if not pending or done:
+                no_workers_since = None
+                continue
+            try:
+                n_workers = len(client.nthreads())
+            except Exception:  # scheduler unreachable: count as no workers
+                n_workers = 0
+            now = time.monotonic()
+            if n_workers:
+                no_workers_since = None
+            elif no_workers_since is None:
+                no_workers_since = now
+            elif now - no_workers_since > no_workers_timeout:
+                msg = f"no Dask worker for {no_workers_timeout:g} s; task not run"
+                for fut in sorted(pending, key=lambda f: futs[f]):
+                    res = {"task_id": futs[fut], "error": msg}
+                    progress(res)
+                    yield res
+                return
+    finally:
+        if pending:
+            client.cancel(list(pending))
 
 
 def run_sweep(
@@ -687,6 +865,7 @@ def run_sweep(
     fn: TaskFn | str | None = None,
     plot: bool = True,
     progress: Callable[[dict], None] | None = None,
+    no_workers_timeout: float = 60.0,
 ) -> SweepResult:
     """Run every task of ``spec`` under ``root`` and gather the results table.
 
@@ -714,7 +893,11 @@ def run_sweep(
     plot
         Write ``summary.png``.
     progress
-        Called with each task's summary (or error record) as it completes.
+        Called with each task's summary (or error record) as it completes (tasks finished
+        by an earlier run first, without being submitted anywhere).
+    no_workers_timeout
+        For ``"dask"``: seconds the cluster may have no worker at all while tasks wait; then
+        the waiting tasks fail (and are retried ``retries`` times) instead of waiting forever.
 
     Raises
     ------
@@ -730,6 +913,8 @@ def run_sweep(
         raise ValueError(f"scheduler/dask_local/client need executor='dask', got {executor!r}")
     if retries < 0:
         raise ValueError(f"retries must be >= 0, got {retries!r}")
+    if not (isinstance(no_workers_timeout, int | float) and no_workers_timeout > 0):
+        raise ValueError(f"no_workers_timeout must be > 0 seconds, got {no_workers_timeout!r}")
     root = Path(root).resolve()  # workers elsewhere resolve relative paths differently
     root.mkdir(parents=True, exist_ok=True)
     tasks = expand(spec)
@@ -737,16 +922,32 @@ def run_sweep(
     t0 = time.perf_counter()
     startup = 0.0
     results: dict[str, dict] = {}
-    own = None
-    made_client = False
     w = 1
     if executor == "process":
         w = int(workers or os.cpu_count() or 1)
         if w < 1:
             raise ValueError(f"workers must be >= 1, got {workers!r}")
-    elif executor == "dask" and client is None:
-        client, own = _dask_client(scheduler, dask_local)
-        made_client = True
+    # tasks finished by an earlier run are read here and never submitted: a re-run costs no
+    # executor round trips, and "skipped" means exactly "finished before this sweep started"
+    todo = []
+    for t in tasks:
+        tid = task_id(t)
+        done = read_summary(Path(root) / "tasks" / tid, t)
+        if done is None:
+            todo.append(t)
+        else:
+            results[tid] = {**done, "skipped": True}
+            progress(results[tid])
+    stack = contextlib.ExitStack()
+    if executor == "dask" and client is None and todo:
+        if scheduler:
+            try:
+                from distributed import Client
+            except ImportError:
+                raise _no_dask() from None
+            client = stack.enter_context(Client(scheduler, timeout="60s"))
+        else:
+            client = stack.enter_context(dask_local_cluster(int(dask_local or 2)))
         startup = time.perf_counter() - t0
 
     def execute(batch: list[dict]) -> Iterator[dict]:
@@ -754,22 +955,26 @@ def run_sweep(
             return _run_inprocess(batch, str(root), fn, progress)
         if executor == "process":
             return _run_process(batch, str(root), fn, w, retries, progress)
-        return _run_dask(batch, str(root), fn, client, progress)
+        return _run_dask(batch, str(root), fn, client, progress, no_workers_timeout)
 
-    try:
-        results = {r["task_id"]: r for r in execute(tasks)}
+    def collect(batch: list[dict]) -> None:
+        for r in execute(batch):
+            if r.get("skipped"):
+                # finished during this sweep: Dask recomputed a result lost with its worker,
+                # or two workers raced; the folder's record is the one run that counts
+                r = {**r, "skipped": False}
+            results[r["task_id"]] = r
+
+    with stack:
+        if todo:
+            collect(todo)
         # a task that raised (or whose worker was lost too often) is run again; finished
         # tasks are never repeated (run_task skips them)
         for _ in range(retries):
-            again = [t for t in tasks if "error" in results.get(task_id(t), {"error": ""})]
+            again = [t for t in todo if "error" in results.get(task_id(t), {"error": ""})]
             if not again:
                 break
-            results.update({r["task_id"]: r for r in execute(again)})
-    finally:
-        if made_client:
-            client.close()
-        if own is not None:
-            own.close()
+            collect(again)
     wall = time.perf_counter() - t0
 
     rows, timings, failures = [], [], {}
@@ -946,13 +1151,19 @@ def _write_outputs(result: SweepResult, *, plot: bool, failures: dict[str, str])
         "timings_csv": str(atomic_write_bytes(root / "timings.csv", _csv_bytes(result.timings))),
     }
     metric = _headline_metric(result.spec, result.rows)
+    plot_error = ""
     if plot and result.rows and metric:
-        files["summary_png"] = str(
-            plot_summary(result.rows, result.spec, root / "summary.png", metric)
-        )
+        try:
+            files["summary_png"] = str(
+                plot_summary(result.rows, result.spec, root / "summary.png", metric)
+            )
+        except ValueError as exc:  # e.g. the spec's 'plot' names no metric of the task:
+            plot_error = str(exc)  # the tables are written; only the plot is missing
     result.files = files
     doc = result.to_dict()
     doc["failures"] = failures
+    if plot_error:
+        doc["plot_error"] = plot_error
     files["sweep_json"] = str(root / "sweep.json")
     atomic_write_bytes(root / "sweep.json", (json.dumps(doc, indent=2) + "\n").encode())
 

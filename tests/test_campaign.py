@@ -217,6 +217,18 @@ def test_thinning_modes_and_options_are_validated():
         campaign.Plan(d_over_r=0.7).resolved()
 
 
+def test_d_over_r_sets_the_dome_geometry():
+    plan = campaign.Plan(theta_i_deg=(30.0,), rotations_deg=(0.0,), plots=False, d_over_r=0.05)
+    res = campaign.run(plan)
+    assert res.samples.metadata["mirror"] == "ellipsoid"
+    # the side-cars carry the dome: D = 0.05 R
+    from gonio.campaign import _SimulatedLBL
+
+    m = _SimulatedLBL(plan.resolved()).inst.mirror
+    assert m.half_separation == pytest.approx(0.05 * m.radius)
+    assert res.summary["converged"]
+
+
 def test_a_user_brdf_can_be_measured_under_a_free_label():
     from gonio import brdf
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +118,38 @@ def test_toml_and_json_specs_agree(tmp_path):
         ({**SPEC, "settings": {"residual": ["l2"]}}, "residual must be one of"),
         ([1, 2], "expected a table/object at the top level"),
         ({**SPEC, "task": "no_such_module_x:f"}, "cannot import module 'no_such_module_x'"),
+        ({**SPEC, "task": 5}, "'task' must be a string, got 5"),
+        ({**SPEC, "seeds": 2.5}, "'seeds' must be a count or a non-empty list of integers"),
+        ({**SPEC, "seeds": True}, "'seeds' must be a count or a non-empty list of integers"),
+        ({**SPEC, "materials": 3}, "'materials' must be a non-empty list of names, got 3"),
+        ({**SPEC, "settings": [1]}, "'settings' must be a table of lists"),
+        ({**SPEC, "fixed": [1]}, "'fixed' must be a table"),
+        ({**SPEC, "settings": {"noise": [None]}}, r"settings.noise\[0\] must be a number"),
+        ({**SPEC, "settings": {"noise": [0.1, 0.1]}}, "settings.noise lists a value twice"),
+        ({**SPEC, "name": 3}, "'name' must be a string, got 3"),
+        ({**SPEC, "plot": 3}, "'plot' must be a string, got 3"),
+        (
+            {
+                "task": "campaign",
+                "materials": ["rolled_brass"],
+                "seeds": 1,
+                "settings": {"mirorr": ["ellipsoid"]},
+            },
+            r"task rolled_brass-s0-\w+: unknown plan field\(s\) \['mirorr'\]",
+        ),
+        (
+            {
+                "task": "campaign",
+                "materials": ["rolled_brass"],
+                "seeds": 1,
+                "settings": {"mirror": ["parabola"]},
+            },
+            "mirror 'parabola'; expected 'ellipsoid' or 'hemisphere'",
+        ),
+        (
+            {"task": "campaign", "materials": ["unobtainium"], "seeds": 1},
+            "unknown material 'unobtainium'",
+        ),
     ],
 )
 def test_bad_specs_name_the_problem(tmp_path, data, match):
@@ -135,6 +168,13 @@ def test_bad_spec_files(tmp_path):
         sweep.load_spec(_write(tmp_path, "a.yaml", "task: x"))
     with pytest.raises(ValueError, match="does not exist"):
         sweep.load_spec(tmp_path / "missing.toml")
+    with pytest.raises(ValueError, match="is not a file"):
+        sweep.load_spec(tmp_path)
+    with pytest.raises(ValueError, match="missing required key 'task'"):
+        sweep.load_spec(_write(tmp_path, "empty.toml", ""))
+    (tmp_path / "bin.json").write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ValueError, match=r"bin\.json: not valid JSON"):
+        sweep.load_spec(tmp_path / "bin.json")
     with pytest.raises(ValueError, match="must be finite"):
         sweep.spec_from_dict({**SPEC, "fixed": {"n_samples": float("nan")}})
 
@@ -214,6 +254,26 @@ def test_inprocess_sweep_outputs(tmp_path):
     assert (tmp_path / "results.csv").read_bytes() == csv_before
 
 
+def test_plot_metric_that_is_not_a_column(tmp_path):
+    # the spec's 'plot' can only be checked against the metrics once tasks ran: the tables
+    # are still written and sweep.json says why there is no plot
+    state = tmp_path / "state"
+    state.mkdir()
+    spec = sweep.spec_from_dict(
+        {
+            "task": "custom",
+            "materials": ["m"],
+            "seeds": 2,
+            "plot": "nope",
+            "fixed": {"state": str(state)},
+        }
+    )
+    res = sweep.run_sweep(spec, tmp_path / "out")
+    assert len(res.rows) == 2 and not (tmp_path / "out" / "summary.png").exists()
+    doc = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    assert "plot metric 'nope' is not a numeric column" in doc["plot_error"]
+
+
 def test_rerun_skips_finished_after_failures(tmp_path):
     state = tmp_path / "state"
     state.mkdir()
@@ -276,18 +336,15 @@ def test_dask_missing_gives_clear_error(tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------- dask
 @pytest.fixture(scope="module")
 def dask_client():
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     import cloudpickle
 
     # the test module is not importable on the workers: ship its functions by value
     cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    cluster = distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
-    )
-    client = distributed.Client(cluster)
-    yield client
-    client.close()
-    cluster.close()
+    # gonio's own cluster settings (sweep.DASK_CONFIG): with Dask's defaults a worker death
+    # 15 s after an earlier one (or a restart slower than 15 s) closes the nanny for good
+    with sweep.dask_local_cluster(2) as client:
+        yield client
 
 
 def test_dask_localcluster_matches_inprocess(tmp_path, dask_client):
@@ -306,7 +363,6 @@ def test_dask_localcluster_matches_inprocess(tmp_path, dask_client):
     assert c.rows == a.rows and c.n_run == 8
 
 
-@pytest.mark.dask_recovery  # deselected by default: hangs on this machine (see pyproject markers)
 def test_dask_recovers_from_a_killed_worker(tmp_path, dask_client):
     state = tmp_path / "state"
     state.mkdir()
@@ -315,6 +371,13 @@ def test_dask_recovers_from_a_killed_worker(tmp_path, dask_client):
         spec, tmp_path / "out", executor="dask", client=dask_client, fn=counting_task
     )
     assert [r["value"] for r in res.rows] == [0.0, 1.5, 0.0, 1.5]
+    # every task ran in this sweep, exactly once to completion (no double or half result)
+    assert res.n_run == 4 and res.n_skipped == 0
+    assert sorted(d.name for d in (tmp_path / "out" / "tasks").iterdir()) == sorted(
+        sweep.task_id(t) for t in sweep.expand(spec)
+    )
+    # both workers came back (the nannies restarted them and were not closed)
+    assert len(dask_client.nthreads()) == 2
     for t in sweep.expand(spec):
         tid = sweep.task_id(t)
         assert sweep.read_summary(tmp_path / "out" / "tasks" / tid, t) is not None
@@ -338,7 +401,6 @@ def test_single_thread_blas_guard_restores():
     assert len(after) == len(inside)
 
 
-@pytest.mark.dask_recovery  # deselected by default: hangs on this machine
 def test_dask_tables_identical_for_blas_heavy_tasks(tmp_path, dask_client):
     # Dask workers run BLAS on one thread; run_task does the same everywhere, so the
     # rounding of large reductions matches bit for bit
@@ -354,7 +416,6 @@ sweep.register_task("blas", blas_task)
 
 
 @pytest.mark.slow
-@pytest.mark.dask_recovery  # deselected by default: hangs on this machine
 def test_campaign_sweep_identical_on_dask(tmp_path, dask_client):
     pytest.importorskip("gonio.campaign")
     spec = sweep.spec_from_dict(
@@ -378,3 +439,82 @@ def test_campaign_sweep_identical_on_dask(tmp_path, dask_client):
         d = tmp_path / "a" / "tasks" / r["task_id"]
         assert (d / "summary.json").is_file() and (d / sweep.SUMMARY).is_file()
         assert (d / "samples.csv").is_file()
+
+
+def test_dask_workers_lost_twice_in_a_row(tmp_path, dask_client):
+    # two worker deaths in a row (the cluster restarts them between sweeps) cost only the
+    # tasks that died: the re-run finds the first sweep's results and submits nothing
+    for k in range(2):
+        state = tmp_path / f"state{k}"
+        state.mkdir()
+        spec = _custom_spec(state, modes=("die_once",), seeds=[10 * k, 10 * k + 1])
+        res = sweep.run_sweep(
+            spec, tmp_path / f"out{k}", executor="dask", client=dask_client, fn=counting_task
+        )
+        assert [r["value"] for r in res.rows] == [15.0 * k, 15.0 * k + 1.5]
+        assert all(_runs(state, sweep.task_id(t)) == 2 for t in sweep.expand(spec))
+    again = sweep.run_sweep(
+        spec, tmp_path / "out1", executor="dask", client=dask_client, fn=counting_task
+    )
+    assert again.n_run == 0 and again.n_skipped == 2
+    assert all(_runs(state, sweep.task_id(t)) == 2 for t in sweep.expand(spec))
+
+
+def test_dask_without_workers_fails_instead_of_hanging(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    state = tmp_path / "state"
+    state.mkdir()
+    spec = _custom_spec(state, seeds=2)
+    cluster = distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=":0")
+    try:
+        with distributed.Client(cluster) as client:
+            t0 = time.perf_counter()
+            with pytest.raises(sweep.TaskFailed, match=r"no Dask worker for 1 s") as exc:
+                sweep.run_sweep(
+                    spec,
+                    tmp_path / "out",
+                    executor="dask",
+                    client=client,
+                    fn=counting_task,
+                    retries=0,
+                    no_workers_timeout=1.0,
+                    plot=False,
+                )
+            assert time.perf_counter() - t0 < 30
+            assert len(exc.value.failures) == 2 and exc.value.result.rows == []
+            assert client.processing() == {} and not list(state.iterdir())
+    finally:
+        cluster.close()
+    with pytest.raises(ValueError, match="no_workers_timeout must be > 0"):
+        sweep.run_sweep(spec, tmp_path / "x", no_workers_timeout=0)
+
+
+def test_dask_local_cluster_settings_and_environment():
+    pytest.importorskip("distributed")
+    import dask
+
+    before = dict(os.environ)
+    with sweep.dask_local_cluster(1) as client:
+        assert dask.config.get("distributed.deploy.lost-worker-timeout") == "7 days"
+        env = client.run(lambda: dict(os.environ))
+        (wenv,) = env.values()
+        # workers: one BLAS thread, glibc's default heap (no MALLOC_TRIM_THRESHOLD_)
+        assert wenv["OMP_NUM_THREADS"] == "1" and "MALLOC_TRIM_THRESHOLD_" not in wenv
+    assert dict(os.environ) == before  # the nanny's pre-spawn environment did not leak here
+    with pytest.raises(ValueError, match="n_workers must be >= 1"):
+        with sweep.dask_local_cluster(0):
+            pass
+
+
+def test_task_malloc_guard_in_dask_like_worker(monkeypatch):
+    # inside a worker started with Dask's MALLOC_TRIM_THRESHOLD_ the guard sets and restores
+    # glibc's thresholds (mallopt returns 1 on success); outside one it does nothing
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    with sweep._TaskMalloc() as g:
+        assert g._libc is None
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
+    with sweep._TaskMalloc() as g:
+        x = np.ones(1_000_000).sum()
+    assert x == 1e6
+    if sys.platform.startswith("linux"):
+        assert g._libc is not None and g._libc[2] == 65536

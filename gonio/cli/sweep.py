@@ -41,6 +41,14 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--retries", type=int, default=2, help="retries of a failed task (default 2)"
     )
+    parser.add_argument(
+        "--no-workers-timeout",
+        metavar="S",
+        type=float,
+        default=60.0,
+        help="Dask: fail the waiting tasks when the cluster has had no worker for S seconds "
+        "(default 60)",
+    )
     parser.add_argument("--no-plot", action="store_true", help="do not write summary.png")
     parser.add_argument(
         "--dry-run", action="store_true", help="validate the spec and list the tasks only"
@@ -98,6 +106,7 @@ def run(args) -> int:
             retries=args.retries,
             plot=not args.no_plot,
             progress=progress,
+            no_workers_timeout=args.no_workers_timeout,
         )
     except sweep.TaskFailed as exc:
         failed, result = exc, exc.result
