@@ -313,9 +313,13 @@ class _SimulatedLBL:
     def prepare(self, sample: Any = "standard") -> None:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
         before forking workers, which then inherit them instead of each loading them."""
+        from gonio.calibration.reduce import Capture, reduce_selected
+
         _ = self.inst.geometry
-        for smp in ("standard", sample):  # one throw-away bracket each (~10 ms)
-            self.shoot(smp, 0.5, 0.0, 0)
+        # one throw-away bracket each (~10 ms) and their reduction: loads the kernels and
+        # fills the reduction's pixel-geometry caches
+        std, bg, meas = (Capture(self.shoot(x, 0.5, 0.0, 0)) for x in ("standard", None, sample))
+        reduce_selected(meas, std, bg, rng=0)
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
@@ -501,7 +505,7 @@ def run(
     n_workers = _n_workers(workers, plan, instrument)
     pool = None
     if n_workers > 1:
-        pool = _start_pool(n_workers, inst, truth_model, plots=outp is not None and plan.plots)
+        pool = _start_pool(n_workers, inst, truth_model)
     try:
         per_angle = _capture_and_reduce(
             plan, raw, resume, truth_model, inst, pool, quiet=quiet, stream=stream
@@ -526,8 +530,21 @@ def run(
         if raw is not None:
             timings["save_raw_background"] = sum(r["t_write"] for r in per_angle)
         timings["capture_reduce_wall"] = time.perf_counter() - t_start
-        plot_jobs = _plot_jobs(plan, outp, samples, None, pool)  # the map needs no fit
-        result, compare = _fit_all(plan, samples, truth_model, outp, timings, quiet, stream)
+        # while this process fits: the workers write samples.csv, draw the map (it needs no
+        # fit) and load matplotlib for the other plots
+        csv_job = None
+        if pool is not None and outp is not None:
+            csv_job = pool.submit(_write_samples, samples, outp / "samples.csv")
+        plot_jobs = _plot_jobs(plan, outp, samples, None, pool)
+        if pool is not None and plot_jobs:
+            plot_jobs.append(pool.submit(_import_matplotlib))
+        result, compare = _fit_all(
+            plan, samples, truth_model, outp if csv_job is None else None, timings, quiet, stream
+        )
+        if csv_job is not None:
+            t = time.perf_counter()
+            csv_job.result()
+            timings["save_samples_wait"] = time.perf_counter() - t
 
         # -------------------------------------------------------------- report
         summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
@@ -585,7 +602,7 @@ def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
     return max(1, min(os.cpu_count() or 1, 4))
 
 
-def _start_pool(n: int, inst: Any, truth_model: Any, plots: bool) -> Any:
+def _start_pool(n: int, inst: Any, truth_model: Any) -> Any:
     """A process pool forked from this process, so that the workers inherit the imported
     modules, the instrument with its cached geometry and the truth model."""
     import multiprocessing as mp
@@ -596,21 +613,22 @@ def _start_pool(n: int, inst: Any, truth_model: Any, plots: bool) -> Any:
     # with the fork start method the initializer's arguments are inherited, not pickled
     return ProcessPoolExecutor(
         n, mp_context=mp.get_context("fork"), initializer=_init_worker,
-        initargs=(inst, truth_model, plots),
+        initargs=(inst, truth_model),
     )  # fmt: skip
 
 
-def _init_worker(inst: Any, truth_model: Any, plots: bool) -> None:
+def _init_worker(inst: Any, truth_model: Any) -> None:
     _POOL_STATE.update(inst=inst, truth=truth_model)
-    if plots:  # matplotlib loads while the worker waits for its first task
-        import threading
-
-        threading.Thread(target=_import_matplotlib, daemon=True).start()
 
 
 def _import_matplotlib() -> None:
+    """A pool job: load matplotlib in a worker while this process fits."""
     from matplotlib.backends import backend_agg  # noqa: F401
     from matplotlib.figure import Figure  # noqa: F401
+
+
+def _write_samples(samples: BRDFSamples, path: Path) -> None:
+    samples.write(path)
 
 
 def _capture_and_reduce(
@@ -739,8 +757,8 @@ def _fit_all(
     plan: Plan, samples: BRDFSamples, truth_model: Any, outp: Path | None,
     timings: dict[str, float], quiet: bool, stream: Any,
 ) -> tuple[Any, dict[str, Any]]:  # fmt: skip
-    """The main fit and the compared models; ``samples.csv`` is written meanwhile."""
-    # samples.csv is formatted on a thread while the fit runs
+    """The main fit and the compared models; ``samples.csv`` (if ``outp``) is written on a
+    thread meanwhile."""
     from concurrent.futures import ThreadPoolExecutor
 
     from gonio import fit as _fit
