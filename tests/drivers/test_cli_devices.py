@@ -20,11 +20,13 @@ from gonio.drivers.usb2000 import USB2000Plus
 @contextlib.contextmanager
 def _served(tmp_path, *extra: str):
     """Run ``gonio devices serve --json ...``; yield its records (up to the bench line)."""
+    # stderr to a file: an unread pipe fills up (warnings, logs) and blocks the server
+    err = open(tmp_path / "serve.stderr", "w+")
     proc = subprocess.Popen(
         [sys.executable, "-c", "import sys; from gonio.cli import main; sys.exit(main())",
          "devices", "serve", "--json", *extra],
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=err,
         text=True,
         # not the repository root: its gonio/ folder would shadow the installed package
         cwd=tmp_path,
@@ -39,16 +41,17 @@ def _served(tmp_path, *extra: str):
             recs.append(json.loads(line))
             if recs[-1]["device"] == "bench":
                 break
-        assert recs and recs[-1]["device"] == "bench", proc.stderr.read()
+        assert recs and recs[-1]["device"] == "bench", (tmp_path / "serve.stderr").read_text()
         yield recs
     finally:
         os.kill(proc.pid, signal.SIGINT)
         try:
-            proc.wait(timeout=10)
+            proc.wait(timeout=60)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-    assert proc.returncode in (0, 130)
+        err.close()
+    assert proc.returncode in (0, 130), (tmp_path / "serve.stderr").read_text()[-3000:]
 
 
 def test_devices_serve_json_and_reach_devices(tmp_path):
