@@ -166,14 +166,19 @@ def _serve(args) -> int:
                 flush=True,
             )
     stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    # SIGINT (Ctrl-C) and SIGTERM both stop the server. SIGINT gets its own handler too: a
+    # process started in the background by a non-interactive shell (`gonio devices serve &`
+    # in a script) inherits SIGINT *ignored*, and Python then raises no KeyboardInterrupt
+    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}  # fmt: skip
     try:
-        while not stop.wait(0.5):  # Ctrl-C raises KeyboardInterrupt here; SIGTERM sets stop
+        while not stop.wait(0.5):
             pass
     except KeyboardInterrupt:
         pass
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         for srv in servers:
             srv.stop()
         remote.close()
