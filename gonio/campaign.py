@@ -746,7 +746,7 @@ def _draw(name: str, samples: BRDFSamples, model: Any, path: Path, title: str) -
     from gonio import plots
 
     if name == "hemisphere":
-        plots.plot_hemisphere(samples, path, title=title)
+        plots.plot_hemisphere(samples, path, title=title, max_panels=12)
     elif name == "incidence_plane":
         plots.plot_incidence_plane(samples, model, path, title=title)
     else:
