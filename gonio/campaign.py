@@ -530,21 +530,23 @@ def run(
         if raw is not None:
             timings["save_raw_background"] = sum(r["t_write"] for r in per_angle)
         timings["capture_reduce_wall"] = time.perf_counter() - t_start
-        # while this process fits: the workers write samples.csv, draw the map (it needs no
-        # fit) and load matplotlib for the other plots
-        csv_job = None
-        if pool is not None and outp is not None:
-            csv_job = pool.submit(_write_samples, samples, outp / "samples.csv")
+        # while this process fits, the workers draw the map (it needs no fit) and load
+        # matplotlib for the other plots
         plot_jobs = _plot_jobs(plan, outp, samples, None, pool)
         if pool is not None and plot_jobs:
             plot_jobs.append(pool.submit(_import_matplotlib))
-        result, compare = _fit_all(
-            plan, samples, truth_model, outp if csv_job is None else None, timings, quiet, stream
-        )
-        if csv_job is not None:
+        csv_done = False
+        if pool is not None and outp is not None:  # the workers formatted the rows
+            from gonio.samples import write_csv_parts
+
             t = time.perf_counter()
-            csv_job.result()
-            timings["save_samples_wait"] = time.perf_counter() - t
+            parts = [p for r in per_angle for p in r["csv_rows"]]
+            write_csv_parts(outp / "samples.csv", samples.metadata, samples.columns, parts)
+            timings["save_samples"] = time.perf_counter() - t
+            csv_done = True
+        result, compare = _fit_all(
+            plan, samples, truth_model, None if csv_done else outp, timings, quiet, stream
+        )
 
         # -------------------------------------------------------------- report
         summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
@@ -627,10 +629,6 @@ def _import_matplotlib() -> None:
     from matplotlib.figure import Figure  # noqa: F401
 
 
-def _write_samples(samples: BRDFSamples, path: Path) -> None:
-    samples.write(path)
-
-
 def _capture_and_reduce(
     plan: Plan, raw: Path | None, resume: bool, truth_model: Any, inst: Any, pool: Any, *,
     quiet: bool, stream: Any,
@@ -670,7 +668,7 @@ def _incidence_worker(plan: Plan, th: float, raw: Path | None, resume: bool) -> 
     inst, truth_model = _POOL_STATE["inst"], _POOL_STATE["truth"]
     writer = _Writer() if raw is not None else None
     try:
-        res = _incidence(plan, th, raw, resume, truth_model, inst, writer)
+        res = _incidence(plan, th, raw, resume, truth_model, inst, writer, csv=raw is not None)
     finally:
         if writer is not None:
             writer.wait()
@@ -680,7 +678,7 @@ def _incidence_worker(plan: Plan, th: float, raw: Path | None, resume: bool) -> 
 
 def _incidence(
     plan: Plan, th: float, raw: Path | None, resume: bool, truth_model: Any, inst: Any,
-    writer: _Writer | None,
+    writer: _Writer | None, csv: bool = False,
 ) -> dict[str, Any]:  # fmt: skip
     """One incidence angle: standard and background, the sample at every rotation, reduced."""
     from gonio.calibration.reduce import Capture, reduce_capture, reduce_selected
@@ -720,6 +718,10 @@ def _incidence(
             red = reduce_capture(meas, std, bg, thinning=opts)
         res["tables"].append(red.samples)
         res["n_pixels"] += int(red.stats.get("n_before", len(red.samples)))
+        if csv:  # format this table's samples.csv rows here (in a worker: in parallel)
+            from gonio.samples import csv_rows
+
+            res.setdefault("csv_rows", []).append(csv_rows(red.samples))
     res["t_reduce"] = time.perf_counter() - t
     return res
 

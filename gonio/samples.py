@@ -182,18 +182,33 @@ def write_samples(samples: BRDFSamples, path: str | os.PathLike) -> Path:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        buf = io.StringIO()
-        for k, v in samples.metadata.items():
-            buf.write(f"# {k}: {json.dumps(v)}\n")
-        buf.write(",".join(samples.columns) + "\n")
-        np.savetxt(buf, samples.to_array(), delimiter=",", fmt="%.17g")
-        return atomic_write_bytes(path, buf.getvalue().encode())
+        return write_csv_parts(path, samples.metadata, samples.columns, [csv_rows(samples)])
     if suffix == ".npz":
         buf = io.BytesIO()
         arrays = {c: getattr(samples, c) for c in samples.columns}
         np.savez(buf, **arrays, metadata=np.array(json.dumps(samples.metadata)))
         return atomic_write_bytes(path, buf.getvalue())
     raise ValueError(f"unsupported samples file suffix {path.suffix!r}; expected .csv or .npz")
+
+
+def csv_rows(samples: BRDFSamples) -> str:
+    """The data rows of ``samples`` as :func:`write_samples` writes them to a CSV file.
+
+    Formatting is the costly part of a large CSV; tables formatted separately (e.g. in worker
+    processes) and joined with :func:`write_csv_parts` give the same file as one table.
+    """
+    buf = io.StringIO()
+    np.savetxt(buf, samples.to_array(), delimiter=",", fmt="%.17g")
+    return buf.getvalue()
+
+
+def write_csv_parts(
+    path: str | os.PathLike, metadata: dict, columns: tuple[str, ...], parts: list[str]
+) -> Path:
+    """Write a samples CSV from its metadata, column names and :func:`csv_rows` parts."""
+    head = "".join(f"# {k}: {json.dumps(v)}\n" for k, v in metadata.items())
+    text = head + ",".join(columns) + "\n" + "".join(parts)
+    return atomic_write_bytes(path, text.encode())
 
 
 def read_samples(path: str | os.PathLike) -> BRDFSamples:

@@ -110,6 +110,10 @@ def test_worker_processes_give_the_same_campaign(tmp_path):
     for col in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "sigma"):
         np.testing.assert_array_equal(getattr(one.samples, col), getattr(two.samples, col))
     assert one.fit.params == two.fit.params
+    # samples.csv: rows formatted in the workers, joined here = the one-table file
+    assert (tmp_path / "one" / "samples.csv").read_bytes() == (
+        tmp_path / "two" / "samples.csv"
+    ).read_bytes()
     for f in sorted((tmp_path / "one" / "raw").rglob("*.tif")):
         assert f.read_bytes() == (tmp_path / "two" / f.relative_to(tmp_path / "one")).read_bytes()
     assert sorted(p.name for p in (tmp_path / "two" / "plots").glob("*.png")) == [
