@@ -312,41 +312,16 @@ class _CornellProcedures:
         self.c = config
 
     def auto_exposure(self, target: str, polarizer: str = "s") -> tuple[float, bool]:
-        c = self.c
-        room = c.exposure_target * (c.saturation_counts - c.bias_counts)
-        filt = False
-        for _ in range(2):
-            prev = self.rig.read(c.t_preview, polarizer=polarizer, target=target, filter_in=filt)
-            peak = max(float(np.max(prev)) - c.bias_counts - c.dark_rate * c.t_preview, 1.0)
-            if float(np.max(prev)) >= c.saturation_counts and not filt:
-                filt = True
-                continue
-            t = room / (peak / c.t_preview)
-            if t < c.t_min and not filt:
-                filt = True
-                continue
-            return float(np.clip(round(t, 6), c.t_min, c.t_max)), filt
-        return c.t_min, True
+        from gonio.simulator.cornell import auto_exposure
+
+        return auto_exposure(self.rig.read, self.c, target, polarizer)
 
     def measure_raw(
         self, target: str, n_reads: int = 1, first: str = "s"
     ) -> dict[str, dict[str, Any]]:
-        from gonio.simulator.cornell import read_sequence
+        from gonio.simulator.cornell import measure_raw
 
-        t, filt = self.auto_exposure(target, first)
-        reads: dict[tuple[str, bool], list] = {}
-        for q, shutter in read_sequence(first):
-            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
-            reads[(q, shutter)] = [self.rig.read(t, **kw) for _ in range(n_reads)]
-        return {
-            q: {
-                "signal": np.mean(reads[(q, True)], axis=0),
-                "dark": np.mean(reads[(q, False)], axis=0),
-                "t": t,
-                "filter": int(filt),
-            }
-            for q in ("s", "p")
-        }
+        return measure_raw(self.rig.read, self.c, target, n_reads, first)
 
     def calibrate(self, mode: str, wavelengths: NDArray) -> Any:
         from gonio.simulator.cornell import (

@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
@@ -90,6 +90,7 @@ __all__ = [
     "Reference",
     "Timing",
     "accuracy_check",
+    "auto_exposure",
     "bench_renderers",
     "effective_cos",
     "estimate_run_time",
@@ -98,6 +99,7 @@ __all__ = [
     "hemispherical_plan",
     "incidence_plane_plan",
     "inverse",
+    "measure_raw",
     "order_plan",
     "read_plan_csv",
     "read_sequence",
@@ -302,6 +304,55 @@ def read_sequence(first: str = "s") -> tuple[tuple[str, bool], ...]:
 def first_polarizer(index: int) -> str:
     """Polariser of the preview of geometry ``index`` of a campaign (alternating)."""
     return "s" if int(index) % 2 == 0 else "p"
+
+
+def auto_exposure(
+    read: Callable[..., NDArray], config: Any, target: str = "sample", polarizer: str = "s"
+) -> tuple[float, bool]:
+    """Preview read → ``(integration time, filter in)`` aiming at ``config.exposure_target``.
+
+    ``read(t, polarizer=, target=, filter_in=)`` returns a raw spectrum: the simulator's own
+    :meth:`CornellInstrument.read` or a spectrometer reached through the drivers
+    (``gonio.hardware``), which thereby perform the same reads.
+    """
+    c = config
+    room = c.exposure_target * (c.saturation_counts - c.bias_counts)
+    filt = False
+    for _ in range(2):
+        prev = read(c.t_preview, polarizer=polarizer, target=target, filter_in=filt)
+        peak = max(float(np.max(prev)) - c.bias_counts - c.dark_rate * c.t_preview, 1.0)
+        if float(np.max(prev)) >= c.saturation_counts and not filt:
+            filt = True
+            continue
+        t = room / (peak / c.t_preview)
+        if t < c.t_min and not filt:
+            filt = True
+            continue
+        return float(np.clip(round(t, 6), c.t_min, c.t_max)), filt
+    return c.t_min, True
+
+
+def measure_raw(
+    read: Callable[..., NDArray], config: Any, target: str = "sample", n_reads: int = 1,
+    first: str = "s",
+) -> dict[str, dict[str, Any]]:  # fmt: skip
+    """The reads of one geometry through ``read`` (see :func:`auto_exposure`): a preview
+    through ``first``, then :func:`read_sequence`; each dark and signal spectrum is the mean
+    of ``n_reads`` reads."""
+    t, filt = auto_exposure(read, config, target, first)
+    reads: dict[tuple[str, bool], list] = {}
+    for q, shutter in read_sequence(first):
+        kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
+        reads[(q, shutter)] = [read(t, **kw) for _ in range(n_reads)]
+    return {
+        q: {
+            "signal": np.mean(reads[(q, True)], axis=0),
+            "dark": np.mean(reads[(q, False)], axis=0),
+            "t": t,
+            "filter": int(filt),
+        }
+        for q in ("s", "p")
+    }
 
 
 # ----------------------------------------------------------------------------- reduction
@@ -671,21 +722,7 @@ class CornellInstrument:
         """
         if polarizer not in _POL:
             raise ValueError(f"polarizer = {polarizer!r}: expected 's' or 'p'")
-        c = self.config
-        room = c.exposure_target * (c.saturation_counts - c.bias_counts)
-        filt = False
-        for _ in range(2):
-            prev = self.read(c.t_preview, polarizer=polarizer, target=target, filter_in=filt)
-            peak = max(float(np.max(prev)) - c.bias_counts - c.dark_rate * c.t_preview, 1.0)
-            if float(np.max(prev)) >= c.saturation_counts and not filt:
-                filt = True
-                continue
-            t = room / (peak / c.t_preview)
-            if t < c.t_min and not filt:
-                filt = True
-                continue
-            return float(np.clip(round(t, 6), c.t_min, c.t_max)), filt
-        return c.t_min, True
+        return auto_exposure(self.read, self.config, target, polarizer)
 
     def measure_raw(
         self, target: str = "sample", n_reads: int = 1, first: str = "s"
@@ -697,20 +734,7 @@ class CornellInstrument:
 
         With ``n_reads > 1`` each dark and signal spectrum is the mean of that many reads.
         """
-        t, filt = self.auto_exposure(target, first)
-        reads: dict[tuple[str, bool], list] = {}
-        for q, shutter in read_sequence(first):
-            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
-            reads[(q, shutter)] = [self.read(t, **kw) for _ in range(n_reads)]
-        return {
-            q: {
-                "signal": np.mean(reads[(q, True)], axis=0),
-                "dark": np.mean(reads[(q, False)], axis=0),
-                "t": t,
-                "filter": int(filt),
-            }
-            for q in ("s", "p")
-        }
+        return measure_raw(self.read, self.config, target, n_reads, first)
 
     def calibrate(self, mode: str = "standard") -> Reference:
         """Reference measurement: the standard at the reference pose or the direct beam, plus
