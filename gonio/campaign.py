@@ -507,7 +507,7 @@ def run(
     if n_workers > 1:
         pool = _start_pool(n_workers, inst, truth_model)
     try:
-        per_angle = _capture_and_reduce(
+        per_angle, t_write = _capture_and_reduce(
             plan, raw, resume, truth_model, inst, pool, quiet=quiet, stream=stream
         )
         tables = [tb for r in per_angle for tb in r["tables"]]
@@ -528,25 +528,21 @@ def run(
             timings["load_raw"] = t_io
         timings["reduce"] = sum(r["t_reduce"] for r in per_angle)
         if raw is not None:
-            timings["save_raw_background"] = sum(r["t_write"] for r in per_angle)
+            timings["save_raw_background"] = t_write
         timings["capture_reduce_wall"] = time.perf_counter() - t_start
         # while this process fits, the workers draw the map (it needs no fit) and load
         # matplotlib for the other plots
         plot_jobs = _plot_jobs(plan, outp, samples, None, pool)
         if pool is not None and plot_jobs:
             plot_jobs.append(pool.submit(_import_matplotlib))
-        csv_done = False
-        if pool is not None and outp is not None:  # the workers formatted the rows
+        if outp is not None:  # rows formatted per angle where they were reduced
             from gonio.samples import write_csv_parts
 
             t = time.perf_counter()
             parts = [p for r in per_angle for p in r["csv_rows"]]
             write_csv_parts(outp / "samples.csv", samples.metadata, samples.columns, parts)
             timings["save_samples"] = time.perf_counter() - t
-            csv_done = True
-        result, compare = _fit_all(
-            plan, samples, truth_model, None if csv_done else outp, timings, quiet, stream
-        )
+        result, compare = _fit_all(plan, samples, truth_model, timings, quiet, stream)
 
         # -------------------------------------------------------------- report
         summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
@@ -632,23 +628,23 @@ def _import_matplotlib() -> None:
 def _capture_and_reduce(
     plan: Plan, raw: Path | None, resume: bool, truth_model: Any, inst: Any, pool: Any, *,
     quiet: bool, stream: Any,
-) -> list[dict[str, Any]]:  # fmt: skip
-    """Every incidence angle captured (or loaded), saved and reduced; results in plan order."""
+) -> tuple[list[dict[str, Any]], float]:  # fmt: skip
+    """Every incidence angle captured (or loaded), saved and reduced; results in plan order
+    and the seconds the raw-frame writers were busy."""
     angles = plan.theta_i_deg
     out: list[dict[str, Any] | None] = [None] * len(angles)
+    csv = raw is not None  # format each angle's samples.csv rows where it is reduced
     with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
         if pool is None:
             writer = _Writer() if raw is not None else None
             try:
                 for k, th in enumerate(angles):
-                    out[k] = _incidence(plan, th, raw, resume, truth_model, inst, writer)
+                    out[k] = _incidence(plan, th, raw, resume, truth_model, inst, writer, csv)
                     bar.update(label=f"θi {th:g}°")
             finally:
                 if writer is not None:  # finish what was captured, also on an error
                     writer.wait()
-            for r in out:  # the one writer's time, booked on the first angle
-                r["t_write"] = 0.0
-            out[0]["t_write"] = writer.busy_s if writer is not None else 0.0
+            t_write = writer.busy_s if writer is not None else 0.0
         else:
             from concurrent.futures import as_completed
 
@@ -660,7 +656,8 @@ def _capture_and_reduce(
                 k = futs[f]
                 out[k] = f.result()
                 bar.update(label=f"θi {angles[k]:g}°")
-    return out  # type: ignore[return-value]
+            t_write = sum(r.pop("t_write") for r in out)
+    return out, t_write  # type: ignore[return-value]
 
 
 def _incidence_worker(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[str, Any]:
@@ -756,17 +753,11 @@ def _draw(name: str, samples: BRDFSamples, model: Any, path: Path, title: str) -
 
 
 def _fit_all(
-    plan: Plan, samples: BRDFSamples, truth_model: Any, outp: Path | None,
-    timings: dict[str, float], quiet: bool, stream: Any,
+    plan: Plan, samples: BRDFSamples, truth_model: Any, timings: dict[str, float],
+    quiet: bool, stream: Any,
 ) -> tuple[Any, dict[str, Any]]:  # fmt: skip
-    """The main fit and the compared models; ``samples.csv`` (if ``outp``) is written on a
-    thread meanwhile."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    """The main fit and the compared models."""
     from gonio import fit as _fit
-
-    csv_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gonio-samples")
-    csv_job = csv_pool.submit(samples.write, outp / "samples.csv") if outp is not None else None
 
     # ------------------------------------------------------------------ fit
     t = time.perf_counter()
@@ -787,11 +778,6 @@ def _fit_all(
     bar.update()
     bar.close()
     timings["compare"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if csv_job is not None:
-        csv_job.result()
-    csv_pool.shutdown()
-    timings["save_samples_wait"] = time.perf_counter() - t
     return result, compare
 
 

@@ -92,6 +92,7 @@ from numpy.typing import NDArray
 from gonio import brdf as _brdf
 from gonio.brdf.base import BRDF
 from gonio.brdf.composite import Sum
+from gonio.fit_linear import solve_bounded
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -1213,8 +1214,6 @@ class _VarPro:
         w = self.res.scale
         Aw = A * w[:, None]
         bw = (self.res.y - fa) * w
-        from gonio.fit_linear import solve_bounded
-
         dk = solve_bounded(Aw, bw, self.dlo, self.dhi)
         x = np.array(x, dtype=np.float64)
         x[self.lin] = self.a + dk

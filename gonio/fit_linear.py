@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import lsq_linear
-from scipy.sparse.csgraph import connected_components
 
 __all__ = ["blocks", "solve_bounded"]
 
@@ -36,6 +34,8 @@ def blocks(A: NDArray[np.float64]) -> list[tuple[NDArray[np.intp], NDArray[np.in
     nz = A != 0
     if A.shape[1] == 0:
         return []
+    from scipy.sparse.csgraph import connected_components  # scipy loads on first use
+
     inc = nz.astype(np.float64)
     adj = (inc.T @ inc) > 0
     n, labels = connected_components(adj, directed=False)
@@ -69,6 +69,8 @@ def solve_bounded(
         bb = b[rows]
         sol, *_ = np.linalg.lstsq(a, bb, rcond=None)
         if np.any(sol < lo[cols]) or np.any(sol > hi[cols]):
+            from scipy.optimize import lsq_linear  # only when a bound is hit
+
             sol = lsq_linear(a, bb, bounds=(lo[cols], hi[cols]), method="bvls", tol=1e-14).x
         x[cols] = sol
     return x
