@@ -447,31 +447,50 @@ def reduce_many(
     return table, [r.stats for r in results]
 
 
-_SELECTION_CACHE: dict[tuple[int, float], tuple[Any, ...]] = {}
+@dataclass
+class _SelectionGeometry:
+    """The valid pixels of a capture geometry at one sample rotation: flat indices, sample-
+    frame directions, equal-area square coordinates in ``[0, 1]²`` and their cell indices
+    per quadtree level (computed once per level)."""
+
+    cand: NDArray[np.int64]
+    wo: NDArray[np.float64]
+    sq: NDArray[np.float64]
+    _cells: dict[int, NDArray[np.int64]] = field(default_factory=dict)
+
+    def cells(self, level: int) -> NDArray[np.int64]:
+        """Index of each point's cell of the ``2^level × 2^level`` grid."""
+        got = self._cells.get(level)
+        if got is None:
+            n = 1 << level
+            ix = np.minimum((self.sq[:, 0] * n).astype(np.int64), n - 1)
+            iy = np.minimum((self.sq[:, 1] * n).astype(np.int64), n - 1)
+            got = self._cells[level] = ix * n + iy
+        return got
 
 
-def _selection_geometry(
-    wo_dome: NDArray, gvalid: NDArray, rotation: float
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-    """Valid pixel indices, their sample-frame directions and equal-area square coordinates.
+_SELECTION_CACHE: dict[tuple[int, float], tuple[NDArray, _SelectionGeometry]] = {}
 
-    Cached per (cached pixel geometry, sample rotation): a campaign has a few rotations.
-    """
+
+def _selection_geometry(wo_dome: NDArray, gvalid: NDArray, rotation: float) -> _SelectionGeometry:
+    """:class:`_SelectionGeometry` of a cached pixel geometry at a sample rotation (cached:
+    a campaign has a few rotations)."""
     from gonio.calibration.thinning import hemisphere_to_square
 
     key = (id(wo_dome), float(rotation))
     hit = _SELECTION_CACHE.get(key)
     if hit is not None and hit[0] is wo_dome:
-        return hit[1:]
+        return hit[1]
     cand = np.flatnonzero(gvalid.ravel())
     wo_all = to_sample_frame(wo_dome.reshape(-1, 3)[cand], rotation)
     sq = np.clip((hemisphere_to_square(wo_all) + 1.0) / 2.0, 0.0, 1.0)
-    for a in (cand, wo_all, sq):
-        a.setflags(write=False)
+    for arr in (cand, wo_all, sq):
+        arr.setflags(write=False)
     if len(_SELECTION_CACHE) >= 16:
         _SELECTION_CACHE.clear()
-    _SELECTION_CACHE[key] = (wo_dome, cand, wo_all, sq)
-    return cand, wo_all, sq
+    geo = _SelectionGeometry(cand, wo_all, sq)
+    _SELECTION_CACHE[key] = (wo_dome, geo)
+    return geo
 
 
 def _darkest_signal(capture: Capture) -> NDArray[np.float64]:
@@ -489,26 +508,8 @@ def _darkest_signal(capture: Capture) -> NDArray[np.float64]:
     return got
 
 
-def _cells(sq: NDArray[np.float64], level: int) -> NDArray[np.int64]:
-    """Index of each point's cell of the ``2^level × 2^level`` grid on ``[0, 1]²`` (cached)."""
-    cache = _CELL_CACHE.setdefault(id(sq), (sq, {}))
-    if cache[0] is not sq:
-        _CELL_CACHE.clear()
-        cache = _CELL_CACHE.setdefault(id(sq), (sq, {}))
-    got = cache[1].get(level)
-    if got is None:
-        n = 1 << level
-        ix = np.minimum((sq[:, 0] * n).astype(np.int64), n - 1)
-        iy = np.minimum((sq[:, 1] * n).astype(np.int64), n - 1)
-        got = cache[1][level] = ix * n + iy
-    return got
-
-
-_CELL_CACHE: dict[int, tuple[NDArray, dict[int, NDArray]]] = {}
-
-
 def _select(
-    sq: NDArray, num: NDArray, den: NDArray, base_level: int, peak_level: int,
+    geo: _SelectionGeometry, num: NDArray, den: NDArray, base_level: int, peak_level: int,
     peak_fraction: float, gen: np.random.Generator,
 ) -> NDArray[np.int64]:  # fmt: skip
     """One random index per equal-area cell; finer cells inside peak base cells.
@@ -518,7 +519,7 @@ def _select(
     exceeds the median cell ratio (the diffuse level) by ``peak_fraction`` of the range up
     to the largest; a sample whose largest cell is not twice the median has no peak.
     """
-    base = _cells(sq, base_level)
+    base = geo.cells(base_level)
     nb = 1 << (2 * base_level)
     sn = np.bincount(base, weights=num, minlength=nb)
     sd = np.bincount(base, weights=den, minlength=nb)
@@ -531,7 +532,7 @@ def _select(
         peak = (ratio > floor + peak_fraction * (top - floor))[base]
     else:  # no peak (a matte sample): a uniform density everywhere
         peak = np.zeros(base.size, dtype=bool)
-    cell = np.where(peak, nb + _cells(sq, peak_level), base)
+    cell = np.where(peak, nb + geo.cells(peak_level), base)
     key = gen.random(cell.size)
     best = np.full(nb + (1 << (2 * peak_level)), -1.0)
     np.maximum.at(best, cell, key)
@@ -590,11 +591,12 @@ def reduce_selected(
         meta, shape, lens, mirror, method
     )
     h, w = shape
-    cand, wo_all, sq = _selection_geometry(wo_dome, gvalid, rotation)
+    geo = _selection_geometry(wo_dome, gvalid, rotation)
+    cand, wo_all = geo.cand, geo.wo
     bg0 = _darkest_signal(background)[cand]
     num = _darkest_signal(measured)[cand] - bg0
     den = _darkest_signal(standard)[cand] - bg0
-    pick = _select(sq, num, den, base_level, peak_level, peak_fraction, gen)
+    pick = _select(geo, num, den, base_level, peak_level, peak_fraction, gen)
     sel = cand[pick]
     t1 = time.perf_counter()
 
