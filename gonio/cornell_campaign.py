@@ -266,6 +266,13 @@ def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np
     return out
 
 
+def _stray_variance(stray: np.ndarray, c: Any, n: int) -> np.ndarray:
+    """Variance (counts/s)² of the stray-light rate from ``n`` beam-trap reads of ``t_max``
+    (signal and dark shot noise, two read noises)."""
+    g, rd, dk, t = c.gain_e_per_count, c.read_noise_counts, c.dark_rate, c.t_max
+    return ((stray * t + 2 * dk * t) / g + 2 * rd**2) / t**2 / n
+
+
 def reference_band_error(ref: Any, config: Any) -> np.ndarray:
     """Relative standard error (31 bands) that the reference measurement puts on every sample.
 
@@ -290,7 +297,7 @@ def reference_band_error(ref: Any, config: Any) -> np.ndarray:
         stray = np.clip(np.asarray(ref.stray[q], float), 0, None)
         cnt = (rate + stray) * t * tr
         var = ((cnt + 2 * dk * t) / g + 2 * rd**2) / (t * tr) ** 2 / n
-        var_stray = ((stray * c.t_max + 2 * dk * c.t_max) / g + 2 * rd**2) / c.t_max**2 / n
+        var_stray = _stray_variance(stray, c, n)
         rel = (var + var_stray) / rate**2
         rel2 += 0.25 * ((proj * proj) @ rel[use])
     return np.sqrt(rel2)
@@ -312,13 +319,12 @@ def stray_offset_error(ref: Any, config: Any) -> np.ndarray:
 
     c = config
     n = max(1, int(c.n_reference_reads))
-    g, rd, dk = c.gain_e_per_count, c.read_noise_counts, c.dark_rate
     use, proj = _hat_projector(tuple(np.round(ref.wavelengths_nm, 9)), tuple(BANDS_NM))
     var = np.zeros(len(BANDS_NM))
     for q in ("s", "p"):
         rate = np.maximum(np.asarray(ref.rate[q], float), 1e-30)
         stray = np.clip(np.asarray(ref.stray[q], float), 0, None)
-        var_stray = ((stray * c.t_max + 2 * dk * c.t_max) / g + 2 * rd**2) / c.t_max**2 / n
+        var_stray = _stray_variance(stray, c, n)
         to_brdf = np.asarray(ref.scale, float) / rate  # counts/s -> BRDF x cos θi
         var += 0.25 * ((proj * proj) @ (var_stray * to_brdf**2)[use])
     return np.sqrt(var)
