@@ -144,34 +144,35 @@ def _serve(args) -> int:
             "stages": list(bench.stages),
         },
     ]
-    for rec in records:
-        if args.json:
-            print(json.dumps(rec), flush=True)
-        elif rec["device"] == "esp300":
-            print(
-                f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
-                f"axes {rec['axes']}",
-                flush=True,
-            )
-        elif rec["device"] == "bench":
-            print(
-                f"bench: instrument {args.instrument}, material {args.material}, seed "
-                f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop",
-                flush=True,
-            )
-        else:
-            print(
-                f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
-                f"process: gonio.drivers.fake.usb.connect({remote.address!r})",
-                flush=True,
-            )
     stop = threading.Event()
-    # SIGINT (Ctrl-C) and SIGTERM both stop the server. SIGINT gets its own handler too: a
-    # process started in the background by a non-interactive shell (`gonio devices serve &`
-    # in a script) inherits SIGINT *ignored*, and Python then raises no KeyboardInterrupt
+    # SIGINT (Ctrl-C) and SIGTERM both stop the server, through handlers installed before the
+    # records are printed (a client may signal as soon as it has read them). SIGINT needs its
+    # own handler: a process started in the background by a non-interactive shell (`gonio
+    # devices serve &` in a script) inherits SIGINT *ignored* and gets no KeyboardInterrupt
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}  # fmt: skip
     try:
+        for rec in records:
+            if args.json:
+                print(json.dumps(rec), flush=True)
+            elif rec["device"] == "esp300":
+                print(
+                    f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
+                    f"axes {rec['axes']}",
+                    flush=True,
+                )
+            elif rec["device"] == "bench":
+                print(
+                    f"bench: instrument {args.instrument}, material {args.material}, seed "
+                    f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop",
+                    flush=True,
+                )
+            else:
+                print(
+                    f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
+                    f"process: gonio.drivers.fake.usb.connect({remote.address!r})",
+                    flush=True,
+                )
         while not stop.wait(0.5):
             pass
     except KeyboardInterrupt:
