@@ -474,10 +474,11 @@ def run(
         Measure this model instead of the preset's (``plan.material`` is then a label; the
         summary compares the fit with this truth). Resuming checks the plan, not ``truth``.
     workers : int, optional
-        Processes that capture, save and reduce incidence angles in parallel (and draw the
-        plots). Default: the CPU count (at most 4), for the simulated instrument and a plan
-        of at least 8 incidence angles; 1 runs everything in this process. The result does
-        not depend on it: every capture draws from its own seed (:func:`capture_seed`).
+        Processes that capture, save and reduce incidence angles in parallel; with more
+        than one, the plots are drawn by one more process (:mod:`gonio.plot_worker`).
+        Default: the CPU count (at most 4), for the simulated instrument and a plan of at
+        least 8 incidence angles; 1 runs everything in this process. The result does not
+        depend on it: every capture draws from its own seed (:func:`capture_seed`).
 
     Returns
     -------
@@ -503,10 +504,15 @@ def run(
     # ------------------------------------------------------------------ capture + reduce
     raw = outp / "raw" if outp is not None else None
     n_workers = _n_workers(workers, plan, instrument)
-    pool = None
-    if n_workers > 1:
-        pool = _start_pool(n_workers, inst, truth_model)
+    pool = plotter = None
+    if n_workers > 1 and outp is not None and plan.plots:
+        from gonio.plot_worker import PlotWorker, warm_matplotlib
+
+        # forked first: it loads matplotlib while this process prepares the instrument
+        plotter = PlotWorker(warm_matplotlib)
     try:
+        if n_workers > 1:
+            pool = _start_pool(n_workers, inst, truth_model)
         per_angle, t_write = _capture_and_reduce(
             plan, raw, resume, truth_model, inst, pool, quiet=quiet, stream=stream
         )
@@ -530,32 +536,36 @@ def run(
         if raw is not None:
             timings["save_raw_background"] = t_write
         timings["capture_reduce_wall"] = time.perf_counter() - t_start
-        # while this process fits, the workers draw the map (it needs no fit) and load
-        # matplotlib for the other plots
-        plot_jobs = _plot_jobs(plan, outp, samples, None, pool)
-        if pool is not None and plot_jobs:
-            plot_jobs.append(pool.submit(_import_matplotlib))
-        if outp is not None:  # rows formatted per angle where they were reduced
-            from gonio.samples import write_csv_parts
+        if pool is not None:
+            pool.shutdown(wait=True)
+            pool = None
+        # the hemisphere map needs no fit: drawn (by the plot worker) while this process fits
+        _plot_jobs(plan, outp, samples, None, plotter)
+        from concurrent.futures import ThreadPoolExecutor
 
-            t = time.perf_counter()
-            parts = [p for r in per_angle for p in r["csv_rows"]]
-            write_csv_parts(outp / "samples.csv", samples.metadata, samples.columns, parts)
-            timings["save_samples"] = time.perf_counter() - t
-        result, compare = _fit_all(plan, samples, truth_model, timings, quiet, stream)
+        with ThreadPoolExecutor(1, thread_name_prefix="gonio-csv") as io_thread:
+            saved = None
+            if outp is not None:  # rows formatted per angle where they were reduced
+                parts = [p for r in per_angle for p in r["csv_rows"]]
+                saved = io_thread.submit(_save_samples, outp, samples, parts)
+            result, compare = _fit_all(plan, samples, truth_model, timings, quiet, stream)
+            if saved is not None:
+                timings["save_samples"] = saved.result()
 
         # -------------------------------------------------------------- report
         summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
         t = time.perf_counter()
-        plot_jobs += _plot_jobs(plan, outp, samples, result.model, pool)
-        for job in plot_jobs:
-            job.result()
+        _plot_jobs(plan, outp, samples, result.model, plotter)
+        if plotter is not None:
+            plotter.wait()
         if outp is not None and plan.plots:
             summary["files"]["plots"] = [f"plots/{n}.png" for n in _PLOTS]
         timings["plots"] = time.perf_counter() - t
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
+        if plotter is not None:
+            plotter.close()
     t = time.perf_counter()
     if outp is not None:
         fitd = result.to_dict()
@@ -617,12 +627,6 @@ def _start_pool(n: int, inst: Any, truth_model: Any) -> Any:
 
 def _init_worker(inst: Any, truth_model: Any) -> None:
     _POOL_STATE.update(inst=inst, truth=truth_model)
-
-
-def _import_matplotlib() -> None:
-    """A pool job: load matplotlib in a worker while this process fits."""
-    from matplotlib.backends import backend_agg  # noqa: F401
-    from matplotlib.figure import Figure  # noqa: F401
 
 
 def _capture_and_reduce(
@@ -723,22 +727,30 @@ def _incidence(
     return res
 
 
-def _plot_jobs(plan: Plan, outp: Path | None, samples: BRDFSamples, model: Any, pool: Any):
-    """Draw (in this process) or start (in the pool) the plots: with ``model=None`` the
-    hemisphere map, which needs no fit, else the two that show the fitted model. Returns
-    the futures to wait for."""
+def _plot_jobs(
+    plan: Plan, outp: Path | None, samples: BRDFSamples, model: Any, plotter: Any
+) -> None:
+    """Draw (in this process) or send to the plot worker the plots: with ``model=None``
+    the hemisphere map, which needs no fit, else the two that show the fitted model."""
     if outp is None or not plan.plots:
-        return []
+        return
     names = ("hemisphere",) if model is None else ("incidence_plane", "residuals")
     title = f"{plan.material} ({plan.model})"
-    jobs = []
     for name in names:
         args = (name, samples, model, outp / "plots" / f"{name}.png", title)
-        if pool is None:
+        if plotter is None:
             _draw(*args)
         else:
-            jobs.append(pool.submit(_draw, *args))
-    return jobs
+            plotter.submit(_draw, *args)
+
+
+def _save_samples(outp: Path, samples: BRDFSamples, parts: list[str]) -> float:
+    """Write ``samples.csv`` from its pre-formatted parts; return the seconds it took."""
+    from gonio.samples import write_csv_parts
+
+    t = time.perf_counter()
+    write_csv_parts(outp / "samples.csv", samples.metadata, samples.columns, parts)
+    return time.perf_counter() - t
 
 
 def _draw(name: str, samples: BRDFSamples, model: Any, path: Path, title: str) -> None:

@@ -194,12 +194,37 @@ def write_samples(samples: BRDFSamples, path: str | os.PathLike) -> Path:
 def csv_rows(samples: BRDFSamples) -> str:
     """The data rows of ``samples`` as :func:`write_samples` writes them to a CSV file.
 
-    Formatting is the costly part of a large CSV; tables formatted separately (e.g. in worker
-    processes) and joined with :func:`write_csv_parts` give the same file as one table.
+    Every value is written ``%.17g`` (it reads back bit for bit), the same text as
+    ``numpy.savetxt(fmt="%.17g", delimiter=",")``. Formatting is the costly part of a large
+    CSV (~0.4 µs per number), so a column whose values are all the same (bit for bit: the
+    incidence angles of one capture) is formatted once and pasted into the row template,
+    and the rest go through one ``%`` operation per block of rows. Tables formatted
+    separately (e.g. in worker processes) and joined with :func:`write_csv_parts` give the
+    same file as one table.
     """
-    buf = io.StringIO()
-    np.savetxt(buf, samples.to_array(), delimiter=",", fmt="%.17g")
-    return buf.getvalue()
+    arr = samples.to_array()
+    n = arr.shape[0]
+    if n == 0:
+        return ""
+    parts: list[str] = []
+    varying: list[int] = []
+    for j in range(arr.shape[1]):
+        bits = np.ascontiguousarray(arr[:, j]).view(np.int64)
+        if bool((bits == bits[0]).all()):
+            parts.append(f"{float(arr[0, j]):.17g}")  # (the same text as "%.17g")
+        else:
+            parts.append("%.17g")
+            varying.append(j)
+    row = ",".join(parts) + "\n"
+    if not varying:
+        return (row % ()) * n
+    vals = arr[:, varying]
+    out = []
+    block = 65536
+    for a in range(0, n, block):
+        v = vals[a : a + block]
+        out.append((row * v.shape[0]) % tuple(v.ravel().tolist()))
+    return "".join(out)
 
 
 def write_csv_parts(

@@ -102,8 +102,9 @@ def test_resumed_run_equals_uninterrupted_run(tmp_path):
 
 
 def test_worker_processes_give_the_same_campaign(tmp_path):
-    """Incidence angles captured, saved and reduced in 2 forked workers (plots drawn there
-    too) give bit-identical samples, fit and raw files, and a resume from the pool's files."""
+    """Incidence angles captured, saved and reduced in 2 forked workers (plots drawn by the
+    plot worker) give bit-identical samples, fit and raw files, and a resume from the pool's
+    files."""
     plan = campaign.Plan(theta_i_deg=(10.0, 30.0, 50.0, 70.0), rotations_deg=(0.0, 90.0), seed=3)
     one = campaign.run(plan, tmp_path / "one", workers=1)
     two = campaign.run(plan, tmp_path / "two", workers=2)

@@ -57,3 +57,26 @@ def test_validation():
         BRDFSamples([2.0], [0], [0], [0], [1], [0.1])
     with pytest.raises(ValueError, match="rows"):
         BRDFSamples([0.1, 0.2], [0], [0], [0], [1], [0.1])
+
+
+@pytest.mark.parametrize("n", [1, 3, 200])
+@pytest.mark.parametrize("constant", [(), ("theta_i", "phi_i"), ("theta_i", "value", "sigma")])
+def test_csv_rows_matches_savetxt(n, constant):
+    """csv_rows pastes constant columns once; the text must equal numpy.savetxt's %.17g."""
+    import io
+
+    from gonio.samples import csv_rows
+
+    rng = np.random.default_rng(n)
+    cols = {c: rng.random(n) for c in ("theta_i", "phi_i", "theta_o", "phi_o")}
+    cols.update(value=rng.random(n) * 10.0 ** rng.integers(-8, 3), sigma=rng.random(n) * 1e-5)
+    for c in constant:
+        cols[c] = np.full(n, cols[c][0])
+    cols["phi_i"] = -cols["phi_i"] if "phi_i" not in constant else np.full(n, -0.0)
+    t = BRDFSamples(**cols, wavelength_nm=np.full(n, 550.0))
+    buf = io.StringIO()
+    np.savetxt(buf, t.to_array(), delimiter=",", fmt="%.17g")
+    assert csv_rows(t) == buf.getvalue()
+    back = np.loadtxt(io.StringIO(csv_rows(t)), delimiter=",", ndmin=2)
+    np.testing.assert_array_equal(back, t.to_array())  # bit for bit, -0.0 included
+    assert np.signbit(back[:, 1]).all()

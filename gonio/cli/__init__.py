@@ -56,5 +56,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+def console_main() -> None:
+    """The ``gonio`` console script: :func:`main`, then a quick exit with its status.
+
+    Once the command has returned, the exit handlers have run and the output is flushed,
+    the process ends with ``os._exit``: the interpreter's own teardown does nothing a
+    finished command needs and, after numba has loaded compiled kernels, takes ~0.2 s
+    (measured here: 0.66 s vs 0.44 s for a process that loads one kernel and exits).
+    """
+    import atexit
+    import os
+
+    code = main()
+    atexit._run_exitfuncs()  # what a normal exit runs first (logging, multiprocessing, ...)
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BrokenPipeError:  # a reader that went away (``gonio ... | head``)
+        code = code or 1
+    os._exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console_main()

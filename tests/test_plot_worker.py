@@ -1,0 +1,68 @@
+import os
+
+import pytest
+
+from gonio.plot_worker import PlotWorker, warm_matplotlib
+
+
+def _append(path, text):
+    with open(path, "a") as f:
+        f.write(text)
+
+
+def _fail(message):
+    raise ValueError(message)
+
+
+def _numba_switch(path):
+    _append(path, os.environ.get("GONIO_NO_NUMBA", "unset"))
+
+
+def test_jobs_run_in_order_after_the_warm_up(tmp_path):
+    log = tmp_path / "log.txt"
+    with PlotWorker(_append, (log, "warm;")) as w:
+        for k in range(3):
+            w.submit(_append, log, f"{k};")
+        w.wait()
+        assert log.read_text() == "warm;0;1;2;"
+        w.submit(_numba_switch, log)  # models use their numpy paths in the worker
+        w.wait()
+    assert log.read_text().endswith("1")
+
+
+def test_the_first_error_is_raised_and_the_worker_goes_on(tmp_path):
+    log = tmp_path / "log.txt"
+    with PlotWorker() as w:
+        w.submit(_fail, "first")
+        w.submit(_fail, "second")
+        w.submit(_append, log, "after")
+        with pytest.raises(ValueError, match="first"):
+            w.wait()
+        w.submit(_append, log, "!")
+        w.wait()
+    assert log.read_text() == "after!"
+
+
+def test_a_failed_warm_up_is_only_a_missed_head_start(tmp_path):
+    log = tmp_path / "log.txt"
+    with PlotWorker(_fail, ("warm-up",)) as w:
+        w.submit(_append, log, "ok")
+        w.wait()
+    assert log.read_text() == "ok"
+
+
+def test_a_worker_that_dies_is_reported(tmp_path):
+    w = PlotWorker()
+    try:
+        w.submit(os._exit, 3)
+        with pytest.raises(RuntimeError, match="ended unexpectedly"):
+            w.wait()
+    finally:
+        w.close()
+
+
+def test_warm_matplotlib_draws():
+    warm_matplotlib()  # in this process: no error, and matplotlib's Agg canvas is loaded
+    import sys
+
+    assert "matplotlib.backends.backend_agg" in sys.modules
