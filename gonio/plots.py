@@ -215,13 +215,15 @@ def plot_residuals(
     model: Any,
     path: str | os.PathLike,
     *,
-    max_points: int = 20000,
+    max_points: int = 6000,
     title: str = "",
 ) -> Path:
     """Residuals of ``model`` against θo (coloured by θi) and their histogram.
 
     Normalised ``(f − y)/σ`` when the table has σ (a standard normal for a good fit and
-    honest errors), else relative ``(f − y)/y``.
+    honest errors), else relative ``(f − y)/y``. The scatter shows a fixed-seed subset of
+    at most ``max_points`` samples (drawing 20 000 points took 0.11 s of the plot's 0.22 s);
+    the histogram and the rms use all.
     """
     _check(samples)
     from gonio.fit import predict
