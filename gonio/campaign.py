@@ -753,17 +753,17 @@ def _plot_jobs(
     plan: Plan, outp: Path | None, samples: BRDFSamples, model: Any, plotter: Any
 ) -> None:
     """Draw (in this process) or send to the plot worker the plots: with ``model=None``
-    the hemisphere map, which needs no fit, else the two that show the fitted model."""
+    the hemisphere map, which needs no fit, else the two that show the fitted model (in
+    the plot worker, in parallel)."""
     if outp is None or not plan.plots:
         return
     names = ("hemisphere",) if model is None else ("incidence_plane", "residuals")
-    title = f"{plan.material} ({plan.model})"
+    args = (samples, model, outp / "plots", f"{plan.material} ({plan.model})")
+    if plotter is not None:
+        plotter.submit(_draw, *args, each=names)
+        return
     for name in names:
-        args = (name, samples, model, outp / "plots" / f"{name}.png", title)
-        if plotter is None:
-            _draw(*args)
-        else:
-            plotter.submit(_draw, *args)
+        _draw(name, *args)
 
 
 def _save_samples(outp: Path, samples: BRDFSamples, parts: list[str]) -> float:
@@ -775,9 +775,10 @@ def _save_samples(outp: Path, samples: BRDFSamples, parts: list[str]) -> float:
     return time.perf_counter() - t
 
 
-def _draw(name: str, samples: BRDFSamples, model: Any, path: Path, title: str) -> None:
+def _draw(name: str, samples: BRDFSamples, model: Any, folder: Path, title: str) -> None:
     from gonio import plots
 
+    path = folder / f"{name}.png"
     if name == "hemisphere":
         plots.plot_hemisphere(samples, path, title=title, max_panels=12)
     elif name == "incidence_plane":

@@ -1,21 +1,25 @@
 """One forked process that draws a campaign's plots while the campaign goes on.
 
 Loading matplotlib and drawing a first figure (fonts, the Agg canvas, text layout) cost
-~0.5 s of CPU once per process; a figure after that costs 0.1-0.2 s. A campaign that runs
+~0.5 s of CPU once per process; a figure after that costs 0.1-0.3 s. A campaign that runs
 its incidence angles in a process pool starts this worker first, before it traces the
 pixel geometry and loads the compiled kernels in one thread (the one time the second core
-is idle), so the worker is warm when the reduced samples arrive. All plots go to this one
-process: one warm-up instead of one per pool worker.
+is idle), so the worker is warm when the reduced samples arrive.
+
+Every job then runs in a fork of the warm worker (``os.fork``: a few ms, and the child is
+as warm as its parent), so jobs sent together draw in parallel on the free cores: the
+campaign's two plots of the fitted model take the time of the slower one, not of both.
 
 The worker is a plain ``multiprocessing`` process with a pipe, not a pool: its parent keeps
-no helper threads, so forking the campaign's pool afterwards stays safe. Jobs run in the
-order sent; :meth:`PlotWorker.wait` returns when all are done and re-raises the first error.
+no helper threads, so forking the campaign's pool afterwards stays safe. :meth:`PlotWorker.wait`
+returns when every job sent so far is done and re-raises the first error.
 """
 
 from __future__ import annotations
 
 import io
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from typing import Any
 
 __all__ = ["PlotWorker", "warm_matplotlib"]
@@ -40,14 +44,34 @@ def warm_matplotlib() -> None:
     fig.savefig(io.BytesIO(), format="png")
 
 
-def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> None:
-    """The worker's loop: warm up, then run ``(fn, args)`` jobs until ``None`` or EOF.
+def _run_child(fn: Callable[..., None], args: tuple, out: Any) -> None:
+    """In a forked child: run the job, send ``None`` or the exception, end the process."""
+    code = 0
+    try:
+        fn(*args)
+        res: BaseException | None = None
+    except BaseException as exc:  # (reported to the parent, not swallowed)
+        res, code = exc, 1
+    try:
+        try:
+            out.send(res)
+        except Exception:  # an exception that does not pickle
+            out.send(RuntimeError(f"{type(res).__name__}: {res}"))
+    finally:
+        os._exit(code)  # no exit handlers, no flush of buffers inherited from the parent
 
-    BRDF models evaluate with their numpy paths here (``GONIO_NO_NUMBA``): a plot evaluates
-    a model on ~10^5 directions (~10 ms), less than loading numba and the compiled kernels
-    into this process would take (~0.3 s).
+
+def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> None:
+    """The worker's loop: warm up, then fork one child per job until ``None`` or EOF.
+
+    A message ``(fn, args, each)`` starts one child per entry ``v`` of ``each`` running
+    ``fn(v, *args)`` (``each=None``: one child running ``fn(*args)``); each child's result
+    (``None`` or its exception) goes back to the parent as it ends. BRDF models evaluate
+    with their numpy paths here (``GONIO_NO_NUMBA``): a plot evaluates a model on ~10^5
+    directions (~10 ms), less than loading numba and the compiled kernels into this process
+    would take (~0.3 s).
     """
-    import os
+    from multiprocessing.connection import Pipe, wait
 
     os.environ["GONIO_NO_NUMBA"] = "1"
     if warm is not None:
@@ -55,22 +79,46 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> Non
             warm(*warm_args)
         except Exception:  # only a head start: a real problem fails the jobs themselves
             pass
-    while True:
-        try:
-            job = conn.recv()
-        except (EOFError, OSError):
-            return
-        if job is None:
-            return
-        fn, args = job
-        try:
-            fn(*args)
-            conn.send(None)
-        except Exception as exc:
-            try:
-                conn.send(exc)
-            except Exception:  # an exception that does not pickle
-                conn.send(RuntimeError(f"{type(exc).__name__}: {exc}"))
+    children: dict[Any, int] = {}  # result pipe -> pid
+    open_ = True
+    while open_ or children:
+        for r in wait([conn, *children] if open_ else list(children)):
+            if r is conn:
+                try:
+                    job = conn.recv()
+                except (EOFError, OSError):
+                    job = None
+                if job is None:
+                    open_ = False
+                    continue
+                fn, args, each = job
+                calls = [args] if each is None else [(v, *args) for v in each]
+                for call in calls:
+                    rd, wr = Pipe(duplex=False)
+                    pid = os.fork()
+                    if pid == 0:  # pragma: no cover - runs in the child
+                        for inherited in (rd, conn, *children):  # (EOF when the worker dies)
+                            inherited.close()
+                        _run_child(fn, call, wr)
+                    wr.close()
+                    children[rd] = pid
+            else:
+                try:
+                    res = r.recv()
+                except (EOFError, OSError):
+                    res = None
+                pid = children.pop(r)
+                r.close()
+                _, status = os.waitpid(pid, 0)
+                if res is None and os.waitstatus_to_exitcode(status) != 0:
+                    res = RuntimeError(
+                        f"a plot job ended with exit code {os.waitstatus_to_exitcode(status)}"
+                    )
+                if open_:
+                    try:
+                        conn.send(res)
+                    except OSError:  # the parent went away: finish the children, then end
+                        open_ = False
 
 
 class PlotWorker:
@@ -96,10 +144,20 @@ class PlotWorker:
         child.close()
         self._pending = 0
 
-    def submit(self, fn: Callable[..., None], *args: Any) -> None:
-        """Queue ``fn(*args)`` (both picklable; sending blocks until the worker takes it)."""
-        self._conn.send((fn, args))
-        self._pending += 1
+    def submit(
+        self, fn: Callable[..., None], *args: Any, each: Sequence[Any] | None = None
+    ) -> None:
+        """Run ``fn(*args)`` in a fork of the worker, or with ``each``, ``fn(v, *args)`` for
+        every ``v`` in it, each in its own fork, in parallel (``args`` are sent once).
+
+        ``fn`` and the arguments must pickle; sending blocks while the worker is still
+        warming up.
+        """
+        n = 1 if each is None else len(each)
+        if n == 0:
+            return
+        self._conn.send((fn, args, None if each is None else list(each)))
+        self._pending += n
 
     def wait(self) -> None:
         """Block until every job sent so far is done; re-raise the first job's error."""
@@ -107,7 +165,7 @@ class PlotWorker:
         while self._pending:
             try:
                 res = self._conn.recv()
-            except EOFError:
+            except (EOFError, OSError):  # (a socket pipe: reset when the peer died)
                 self._pending = 0
                 raise RuntimeError(
                     f"the plot worker ended unexpectedly (exit code {self._proc.exitcode})"
@@ -119,12 +177,17 @@ class PlotWorker:
             raise first
 
     def close(self) -> None:
-        """Stop the worker (after its current job); kill it if it does not stop in 5 s."""
+        """Stop the worker (after its running jobs); kill it if it does not stop in 5 s."""
+        import time
+
         try:
             self._conn.send(None)
         except OSError:
             pass
-        self._proc.join(5.0)
+        # poll (waitpid) rather than join: join waits on a pipe that a job's fork also holds
+        deadline = time.monotonic() + 5.0
+        while self._proc.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.005)
         if self._proc.is_alive():
             self._proc.kill()
             self._proc.join()
