@@ -86,7 +86,7 @@ def plot_incidence_plane(
     path: str | os.PathLike,
     *,
     n_angles: int = 6,
-    tol: float = np.radians(2.0),
+    tol: float = np.radians(0.5),
     max_points: int = 300,
     title: str = "",
 ) -> Path:
@@ -94,7 +94,11 @@ def plot_incidence_plane(
 
     ``model`` (a BRDF or ``None``) is drawn as continuous curves; measured points are the
     samples within ``tol`` of the plane (at most ``max_points`` per θi, a seeded subset).
-    One panel per distinct sample azimuth φi.
+    One panel per distinct sample azimuth φi. The band is narrow because near grazing an
+    anisotropic lobe is narrow across the plane: for rolled brass (α = 0.05 across) at
+    θi = 80°, a point 1.5° of azimuth off the plane has a BRDF 2.0× below the in-plane value
+    at θo = 66° and 8.9× below at θo = 80°, so a 2° band scattered the points far from the
+    in-plane curve.
     """
     _check(samples)
     phis = pick_angles(samples.phi_i, 4)
