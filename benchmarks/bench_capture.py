@@ -14,7 +14,11 @@ time with and without it and whether the image is unchanged. Then:
 * one bracket rendered once and composed per stop vs plan + a separate capture per stop
   (the pre-fast-bracket way), and that the frames are identical;
 * the noise: time of the compiled draw vs numpy's exact Poisson + normal on a 640 × 480
-  image, and the mean, variance and skewness of both draws against Poisson(λ) + N(0, σ²).
+  image (and the noise + ADC kernel alone, and the compiled normal generator against numba's
+  ``Generator.standard_normal``), and the mean, variance and skewness of both draws against
+  Poisson(λ) + N(0, σ²).
+
+``--quick`` leaves out the per-skip timings.
 """
 
 from __future__ import annotations
@@ -56,7 +60,7 @@ def _fresh(size, **kw):
     return LBLInstrument(width=size[0], height=size[1], **kw)
 
 
-def bench_size(size, repeat, model):
+def bench_size(size, repeat, model, skips=True):
     from gonio.simulator import LBLInstrument
     from gonio.simulator.lbl import _GEOMETRY_CACHE
 
@@ -93,6 +97,9 @@ def bench_size(size, repeat, model):
         repeat,
     )
 
+    out["skips"] = {}
+    if not skips:
+        return out
     skips = {}
     ref, _ = inst.capture(model, TH, noise=False)
 
@@ -253,10 +260,29 @@ def bench_noise(repeat):
     e = inst.electrons("rolled_brass", TH, f_number=4.0)
     sen = inst.sensor
     rng = np.random.default_rng(0)
+    from gonio.simulator import _kernels
+    from numba import njit
+
+    @njit(nogil=True)
+    def numba_normals(gen, out):  # numba's Generator.standard_normal, the previous source
+        for i in range(out.size):
+            out[i] = gen.standard_normal()
+
+    flat = e.ravel()
+    z = np.empty(flat.size)
+    img = np.empty(flat.size, dtype=np.uint16)
+    st = _kernels.seed_state(rng)
+    adc = (sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn))
     out = {
         "threshold_e": sen.normal_threshold,
         "fast_ms": _time(lambda: sen.add_noise(e, rng), repeat)[2],
         "exact_ms": _time(lambda: sen.add_noise(e, rng, exact=True), max(3, repeat // 3))[2],
+        "noise_u16_kernel_ms": _time(
+            lambda: _kernels.noise_u16(flat, st, sen.normal_threshold, sen.read_noise, *adc, img),
+            repeat,
+        )[2],
+        "normals_xoshiro_ms": _time(lambda: _kernels.standard_normals(st, z), repeat)[2],
+        "normals_numba_generator_ms": _time(lambda: numba_normals(rng, z), repeat)[2],
         "moments": [],
     }
     n = 1_000_000
@@ -338,7 +364,7 @@ def main(argv=None):
     model = materials.get("rolled_brass")
     results = []
     for size in ((640, 480), (1024, 1024)):
-        r = bench_size(size, args.repeat, model)
+        r = bench_size(size, args.repeat, model, skips=not args.quick)
         results.append(r)
         print(f"\n== {r['size']}  ({r['candidate_pixels']} of {r['pixels']} pixels see the sample)")
         print(f"geometry trace (one-time, CPU) {r['geometry_ms']:9.1f} ms")
@@ -353,7 +379,8 @@ def main(argv=None):
             f"{r['ratio_noise_on_vs_copy_uint16']:.0f}x uint16, "
             f"{r['ratio_noise_on_vs_copy_float64']:.1f}x float64  (issue 8 target: <= 3x)"
         )
-        print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
+        if r["skips"]:
+            print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
         for k, v in r["skips"].items():
             print(f"{k:<46}{v['with_ms']:>8.2f}ms{v['without_ms']:>8.2f}ms  {v['unchanged']}")
 
@@ -383,6 +410,11 @@ def main(argv=None):
     print(
         f"\nnoise on a 640x480 rolled-brass frame (f/4), CPU ms: compiled {nz['fast_ms']:.2f}"
         f" (normal from {nz['threshold_e']:g} e-), numpy exact Poisson {nz['exact_ms']:.2f}"
+    )
+    print(
+        f"  kernel alone (noise + ADC, no allocation) {nz['noise_u16_kernel_ms']:.2f};"
+        f" 307200 standard normals: xoshiro256++ ziggurat {nz['normals_xoshiro_ms']:.2f},"
+        f" numba Generator.standard_normal {nz['normals_numba_generator_ms']:.2f}"
     )
     print("moments of 1e6 draws, (value - model) / standard error; fast | exact")
     for m in nz["moments"]:

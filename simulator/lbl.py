@@ -17,8 +17,10 @@ is fused into the render pass), spectral bands of a grey BRDF
 f-stops adding no unsaturated pixel (:meth:`LBLInstrument.plan_bracket`), re-rendering per
 f-stop (a bracket renders the noise-free scene once at f/1 and composes every stop from it:
 signal and background scale with 1/N², dark current does not), and the source-cone average
-when the lobe is much wider than the source. With noise on, compose, shot + read noise and
-the ADC are one compiled pass (:mod:`gonio.simulator.sensor` explains the noise draw).
+when the lobe is much wider than the source. With noise on, the float electrons are
+composed in one compiled pass and shot + read noise and the ADC drawn in a second
+(:mod:`gonio.simulator.sensor` explains the noise draw, :mod:`gonio.simulator._kernels`
+the passes).
 ``rays_per_pixel`` supersamples each pixel with an s × s grid of traced rays.
 
 Radiometry (photon units, see :mod:`gonio.simulator.source`): a sample point lit by the beam
@@ -102,6 +104,21 @@ class Geometry:
         """Number of pixels of the full image."""
         return self.height * self.width
 
+    def runs(self) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+        """Runs of consecutive candidate pixels: (first pixel, first index into ``idx``) of
+        each, or None when a pixel has several entries (supersampled). Cached."""
+        r = self.__dict__.get("_runs", False)
+        if r is False:
+            idx = self.idx
+            if idx.size and (np.diff(idx) <= 0).any():
+                r = None
+            else:
+                rj = np.flatnonzero(np.diff(idx) != 1) + 1
+                rj = np.concatenate([np.zeros(min(idx.size, 1), dtype=np.int64), rj])
+                r = (np.ascontiguousarray(idx[rj], dtype=np.int64), rj.astype(np.int64))
+            self.__dict__["_runs"] = r
+        return r
+
 
 #: most sub-pixel rays a supersampled geometry may hold (about 60 bytes each)
 MAX_RAYS = 1 << 23
@@ -134,6 +151,7 @@ class _Scene:
     ks0: float
     delta: tuple[NDArray, NDArray] | None
     rays: int = 1
+    runs: tuple[NDArray, NDArray] | None = None  # idx as runs (Geometry.runs), if unique
 
 
 def _check_rays(rays_per_pixel: Any) -> int:
@@ -813,16 +831,18 @@ class LBLInstrument:
             rc = self._response()[1][:0]
             idx = g.idx[:0]
             lit, gv, isq, kd0, ks0 = idx.astype(np.uint8), rc, rc, 0.0, 0.0
+            runs = (idx, idx)
         else:
             idx, rc = g.idx, self._resp_rays(g, rays)
             lit, gv, isq, kd0, ks0 = self._signal_terms(
                 g, model, theta_i, phi_i, 1.0, band, source_samples, kernel, visible_only
             )
+            runs = g.runs()
         delta = None
         if model is not None and model.has_delta:
             wi_local, _, _ = self._frames(theta_i, phi_i)
             delta = self._delta_terms(model, wi_local, wi_dome, psi, band)
-        return _Scene(bg, dark, exposure, k0, idx, rc, lit, gv, isq, kd0, ks0, delta, rays)
+        return _Scene(bg, dark, exposure, k0, idx, rc, lit, gv, isq, kd0, ks0, delta, rays, runs)
 
     def _compose(self, sc: _Scene, f_number: float, kernel=True, digitise=False) -> NDArray:
         """Noise-free electrons of a scene at ``f_number`` (flat float64), or with
@@ -835,18 +855,31 @@ class LBLInstrument:
         if kernel:
             from gonio.simulator import _kernels
 
+            adc = (sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn))
             if digitise and sc.delta is None and sen.linear:
                 img = np.empty(n, dtype=np.uint16)
-                _kernels.compose_u16(
-                    sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc,
-                    ksc, sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
-                )  # fmt: skip
+                if sc.runs is not None:
+                    _kernels.compose_u16_runs(
+                        sc.bg, sc.dark, tk, sc.exposure, *sc.runs, sc.rc, sc.lit, sc.g, sc.isq,
+                        kdc, ksc, *adc, img,
+                    )  # fmt: skip
+                else:
+                    _kernels.compose_u16(
+                        sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq,
+                        kdc, ksc, *adc, img,
+                    )  # fmt: skip
                 return img
             out = np.empty(n)
-            _kernels.compose_float(
-                sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc, ksc,
-                out,
-            )  # fmt: skip
+            if sc.runs is not None:
+                _kernels.compose_float_runs(
+                    sc.bg, sc.dark, tk, sc.exposure, *sc.runs, sc.rc, sc.lit, sc.g, sc.isq, kdc,
+                    ksc, out,
+                )  # fmt: skip
+            else:
+                _kernels.compose_float(
+                    sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc,
+                    ksc, out,
+                )  # fmt: skip
         else:
             out = sc.bg * tk + sc.dark * sc.exposure
             sig = sc.rc * sc.lit * (kdc + ksc * sc.g * sc.isq)
@@ -870,13 +903,24 @@ class LBLInstrument:
         if not noise and skip_noise_draws and binning is None and sen.linear and sc.delta is None:
             # no random draws, ADC fused into the render pass
             return self._compose(sc, f_number, digitise=True).reshape(h, w), self.lens
-        e = self._compose(sc, f_number)
-        if noise:
-            # shot + read noise drawn in place (a separate compiled pass is faster than one
-            # fused with the compose: the generator's state stays in registers)
+        if noise and binning is None and sen.linear:
+            # shot + read noise and the ADC in one compiled pass over the composed electrons
             from gonio.simulator import _kernels
 
-            _kernels.noise_float(e, rng, sen.normal_threshold, sen.read_noise, e)
+            e = self._compose(sc, f_number)
+            img = np.empty(h * w, dtype=np.uint16)
+            _kernels.noise_u16(
+                e, _kernels.seed_state(rng), sen.normal_threshold, sen.read_noise,
+                sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
+            )  # fmt: skip
+            return img.reshape(h, w), self.lens
+        e = self._compose(sc, f_number)
+        if noise:
+            # shot + read noise drawn in place
+            from gonio.simulator import _kernels
+
+            state = _kernels.seed_state(rng)
+            _kernels.noise_float(e, state, sen.normal_threshold, sen.read_noise, e)
         elif not skip_noise_draws:
             # the "no random draws when noise is off" rule switched off (benchmark): draw the
             # shot and read noise as if noise were on and add them with zero amplitude

@@ -56,6 +56,13 @@ at any λ, so the radiometry (eq. 2) and the noise model the calibration uses ar
 ``Sensor.add_noise(..., exact=True)`` keeps numpy's exact draw for comparison, and
 ``benchmarks/bench_capture.py`` prints the measured moments of both.
 
+The compiled draw takes its random numbers from a xoshiro256++ generator inside the kernel
+(standard normals by numpy's 256-layer ziggurat), seeded with four 64-bit words from the
+``numpy.random.Generator`` passed in, so it is reproducible from that Generator's seed and
+independent of the number of threads (:mod:`gonio.simulator._kernels`; about twice as fast
+as numba's ``Generator.standard_normal``, which calls the bit generator through a pointer
+for every word).
+
 References
 ----------
 003_0632ad07325ce89d.txt §3 (CCD camera with fisheye lens, video capture board; two or
@@ -236,8 +243,9 @@ class Sensor:
                 e += self.read_noise * rng.standard_normal(e.shape)
             return e
         out = np.empty(lam.shape)
+        state = _kernels.seed_state(rng)
         _kernels.noise_float(
-            lam.ravel(), rng, self.normal_threshold, self.read_noise, out.reshape(-1)
+            lam.ravel(), state, self.normal_threshold, self.read_noise, out.reshape(-1)
         )
         return out
 
