@@ -312,6 +312,7 @@ def eq2(
     threshold: float = 5.0,
     variance: str = "own",
     ratio_at: tuple[ArrayLike, ArrayLike] | None = None,
+    debias: bool = False,
 ) -> Reflectance:
     r"""Ward's eq. 2 at every pixel with propagated standard errors.
 
@@ -335,6 +336,9 @@ def eq2(
     ratio_at : (num, den) arrays, optional
         Estimates of ``V_m − V_b`` and ``V_s − V_b`` at which the propagation is evaluated
         instead (e.g. neighbour means computed by the caller); overrides ``variance``.
+    debias : bool
+        Remove the second-order bias of the ratio (see Notes), with the variances and the
+        ratio taken where the error propagation is evaluated (``variance``/``ratio_at``).
 
     Returns
     -------
@@ -346,6 +350,17 @@ def eq2(
     numerator and denominator, so ``cov(n, d) = var(V_b)`` and::
 
         var(ρ) = (ρ_std/π)² / d² · [var(V_m) + var(V_b) + r² (var(V_s) + var(V_b)) − 2 r var(V_b)]
+
+    The ratio of noisy readings is biased: to second order
+    ``E[n/d] = r + (r var(d) − cov(n, d)) / d²``, a relative bias of about ``(σ_d/d)²``.
+    Per pixel it is a small fraction of σ (about ``σ_d/d`` of it where the standard's noise
+    dominates), but it has one sign everywhere, so a fit pooling 10⁵ pixels sees it: rolled
+    brass, 21 θi × 2 rotations, default noise, selection thinning: mean ρs pull
+    +1.03 ± 0.15 over 49 seeds without, −0.02 ± 0.14 over 60 seeds with ``debias``.
+    ``debias=True`` subtracts ``(r var(d) − var(V_b)) / d²`` evaluated as above — with
+    ``variance="neighbours"`` or ``ratio_at`` independent of the pixel's own noise. The
+    noise model is that of a noisy sensor: for noise-free images the correction itself is a
+    bias of relative size ``(σ_d/d)²``.
 
     References
     ----------
@@ -386,6 +401,9 @@ def eq2(
         ok &= d_nb > 0.0
         safe = np.where(ok, d_nb, safe)
         r = np.where(ok, n_nb / np.where(ok, d_nb, 1.0), r)
-    var_r = (vm + vb + r * r * var_den - 2.0 * r * vb) / (safe * safe)
+    d2 = safe * safe
+    var_r = (vm + vb + r * r * var_den - 2.0 * r * vb) / d2
     sigma = np.where(mask, c * np.sqrt(np.maximum(var_r, 0.0)), 0.0)
+    if debias:  # E[n/d] - n/d = (r var(d) - cov(n, d)) / d², cov(n, d) = var(V_b)
+        value = np.where(mask, value - c * (r * var_den - vb) / d2, 0.0)
     return Reflectance(value, sigma, mask)

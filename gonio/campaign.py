@@ -124,6 +124,11 @@ class Plan:
     d_over_r : float, optional
         The LBL dome's D/R (half the source-sample separation over the mirror radius); default
         the instrument's (0.01 m / 0.15 m).
+    debias : bool
+        Remove the second-order bias of eq. 2's ratio of noisy readings
+        (:func:`gonio.calibration.radiometry.eq2`, ``debias``) when the captures are noisy
+        (``noise > 0``). Measured (rolled brass, default plan, default noise): mean ρs pull
+        +1.03 ± 0.15 over 49 seeds without, −0.02 ± 0.14 over 60 seeds with it.
     """
 
     material: str = "rolled_brass"
@@ -141,6 +146,7 @@ class Plan:
     thinning: tuple[tuple[str, float], ...] | None = None
     thinning_mode: str = "select"
     d_over_r: float | None = None
+    debias: bool = True
 
     def resolved(self, truth: Any = None) -> Plan:
         """The plan with defaults filled in and every field validated.
@@ -206,6 +212,8 @@ class Plan:
                 f"expected some of {sorted(allowed)}"
             )
         thinning = tuple((str(k), v) for k, v in given.items())
+        if not isinstance(self.debias, bool | np.bool_):
+            raise ValueError(f"debias {self.debias!r}: expected True or False")
         d_over_r = self.d_over_r
         if d_over_r is not None:
             d_over_r = float(d_over_r)
@@ -222,6 +230,7 @@ class Plan:
             seed=int(self.seed),
             compare=compare,
             d_over_r=d_over_r,
+            debias=bool(self.debias),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -734,11 +743,12 @@ def _incidence(
     for rot in plan.rotations_deg:
         meas = Capture(captured[_fmt_key(th, rot)]["measured"])
         opts = dict(plan.thinning)
+        debias = plan.debias and plan.noise > 0
         if plan.thinning_mode == "select":
             sel_seed = capture_seed(plan.seed, _fmt_key(th, rot) + "/select")
-            red = reduce_selected(meas, std, bg, rng=sel_seed, **opts)
+            red = reduce_selected(meas, std, bg, rng=sel_seed, debias=debias, **opts)
         else:
-            red = reduce_capture(meas, std, bg, thinning=opts)
+            red = reduce_capture(meas, std, bg, thinning=opts, debias=debias)
         res["tables"].append(red.samples)
         res["n_pixels"] += int(red.stats.get("n_before", len(red.samples)))
         if csv:  # format this table's samples.csv rows here (in a worker: in parallel)

@@ -74,6 +74,11 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument(
+        "--no-debias",
+        action="store_true",
+        help="keep eq. 2's second-order ratio bias (LBL; see Plan.debias)",
+    )
+    parser.add_argument(
         "--workers",
         type=int,
         default=None,
@@ -158,6 +163,7 @@ def run(args) -> int:
         residual=args.residual,
         plots=not args.no_plots,
         d_over_r=args.d_over_r,
+        debias=not args.no_debias,
     )
     if args.angles is not None:
         kw["theta_i_deg"] = parse_angles(args.angles)
