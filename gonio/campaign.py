@@ -356,10 +356,10 @@ class CampaignResult:
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
-def _write_json(path: Path, obj: Any) -> None:
+def _write_json(path: Path, obj: Any, durable: bool = True) -> None:
     from gonio.cli._common import to_json
 
-    atomic_write_bytes(path, (to_json(obj) + "\n").encode())
+    atomic_write_bytes(path, (to_json(obj) + "\n").encode(), durable=durable)
 
 
 def _fmt_key(theta_deg: float, rot_deg: float | None = None) -> str:
@@ -373,7 +373,9 @@ def _save_frames(folder: Path, kind: str, frames: Frames) -> list[str]:
     names = []
     for k, (img, meta) in enumerate(frames):
         name = f"{kind}_{k:02d}{_RAW_SUFFIX}"
-        write_image(folder / name, img, meta, compress=False)  # raw frames: speed over size
+        # raw frames: speed over size; flushed to the disk together after the captures
+        # (_flush_raw), a group whose files do not read back is taken again on resume
+        write_image(folder / name, img, meta, compress=False, durable=False)
         names.append(name)
     return names
 
@@ -415,7 +417,7 @@ class _Writer:
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "done.json").unlink(missing_ok=True)
         files = {kind: _save_frames(folder, kind, fr) for kind, fr in frames.items()}
-        _write_json(folder / "done.json", {"files": files, "seed": seed})
+        _write_json(folder / "done.json", {"files": files, "seed": seed}, durable=False)
         self.busy_s += time.perf_counter() - t
 
     def wait(self) -> float:
@@ -572,16 +574,20 @@ def _run(
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(1, thread_name_prefix="gonio-csv") as io_thread:
-            saved = None
+            saved = flushed = None
             if outp is not None:  # rows formatted per angle where they were reduced
                 parts = [p for r in per_angle for p in r["csv_rows"]]
                 saved = io_thread.submit(_save_samples, outp, samples, parts)
+            if raw is not None:
+                flushed = io_thread.submit(_flush_raw, raw)
             from threadpoolctl import threadpool_limits
 
             with threadpool_limits(limits=1, user_api="blas"):  # scipy's too, loaded by now
                 result, compare = _fit_all(plan, samples, truth_model, timings, quiet, stream)
             if saved is not None:
                 timings["save_samples"] = saved.result()
+            if flushed is not None:
+                timings["flush_raw"] = flushed.result()
 
         # -------------------------------------------------------------- report
         summary = _summary(plan, info, truth_model, result, compare, samples, n_pixels, n_loaded)
@@ -774,6 +780,23 @@ def _plot_jobs(
         return
     for name in names:
         _draw(name, *args)
+
+
+def _flush_raw(raw: Path) -> float:
+    """Flush every raw frame, side-car and group marker to the disk; return the seconds.
+
+    The frames are written without a flush each (``durable=False``): one ``fsync`` per
+    frame made every capture task wait for the disk (measured, default campaign wall clock:
+    1.99-2.15 s in 8 runs with a flush per file, 1.84-1.93 s in 6 runs with this one pass);
+    flushing them all here, on a thread while the fit runs, keeps a finished campaign's
+    files safe from a power failure all the same.
+    """
+    from gonio.samples import fsync_files
+
+    t = time.perf_counter()
+    if raw.is_dir():
+        fsync_files(p for p in sorted(raw.rglob("*")) if p.is_file())
+    return time.perf_counter() - t
 
 
 def _save_samples(outp: Path, samples: BRDFSamples, parts: list[str]) -> float:

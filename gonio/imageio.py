@@ -86,6 +86,7 @@ def write_image(
     metadata: dict[str, Any] | None = None,
     *,
     compress: bool = True,
+    durable: bool = True,
 ) -> Path:
     """Write ``image`` to ``path`` (PNG or TIFF by suffix) and ``metadata`` to its side-car.
 
@@ -103,6 +104,9 @@ def write_image(
         LZW (TIFF) or deflate (PNG) compression; ``False`` writes the pixels as they are
         (measured for a noisy 640 × 480 16-bit frame: LZW 8.4 ms, 187 kB; none 1.2 ms,
         615 kB).
+    durable : bool
+        Flush image and side-car to the disk before they are renamed into place
+        (:func:`gonio.samples.atomic_write_bytes`); ``False`` keeps the atomic rename only.
 
     Returns
     -------
@@ -138,8 +142,8 @@ def write_image(
     if not ok:
         raise ValueError(f"OpenCV could not encode a {img.dtype} {img.shape} image as {suf}")
     if data is not None:
-        atomic_write_bytes(sidecar_path(path), data)
-    return atomic_write_bytes(path, buf.tobytes())
+        atomic_write_bytes(sidecar_path(path), data, durable=durable)
+    return atomic_write_bytes(path, buf.tobytes(), durable=durable)
 
 
 def read_metadata(path: str | os.PathLike, required: bool = True) -> dict[str, Any]:

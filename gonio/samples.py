@@ -13,6 +13,7 @@ import io
 import json
 import os
 import tempfile
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -153,22 +154,60 @@ class BRDFSamples:
         return read_samples(path)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and rename."""
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, durable: bool = True) -> Path:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and rename.
+
+    The rename makes the write atomic: ``path`` holds its old content or all of ``data``,
+    never a part, whatever happens to the process. ``durable`` also flushes the file to the
+    disk (``fsync``) before the rename, so that it survives a power failure; bulk files
+    written in a burst (a campaign's raw frames) pass ``False`` and are flushed together
+    afterwards (:func:`fsync_files`).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def fsync_files(paths: Iterable[str | os.PathLike]) -> int:
+    """Flush files (and then their folders) to the disk; return how many files.
+
+    One pass after a burst of ``durable=False`` writes: the disk writes of all of them are
+    then in flight together, instead of one ``fsync`` waiting per file.
+    """
+    folders = set()
+    n = 0
+    for p in paths:
+        fd = os.open(p, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        folders.add(os.path.dirname(os.path.abspath(p)))
+        n += 1
+    for d in sorted(folders):
+        try:
+            fd = os.open(d, os.O_RDONLY)
+        except OSError:  # (a platform that cannot open folders)
+            continue
+        try:
+            os.fsync(fd)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return n
 
 
 def _umask() -> int:

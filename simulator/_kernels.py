@@ -527,7 +527,26 @@ def digitise_linear(e, full_well, inv_gain, black, max_dn, out):  # pragma: no c
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _plan_pixel(a, dk, s, inv_n2, sat_e, min_e):  # pragma: no cover - compiled
-    """(usable-stop bits, number of leading stops at which the total is <= ``sat_e``)."""
+    """(usable-stop bits, number of leading stops at which the total is <= ``sat_e``).
+
+    ``inv_n2`` ascends (darkest stop first) and ``a >= 0``, ``s > 0``, so the total
+    ``a·r + dk`` (rounding is monotone) stays <= ``sat_e`` for a prefix of the stops, ``hi``
+    of them, and the signal ``s·r`` reaches ``min_e`` from stop ``lo`` on: the usable stops
+    are ``lo .. hi-1`` and the leading count is ``hi``. Two branch-free counts instead of a
+    branchy loop (the same bits as testing every stop, :func:`_plan_pixel_loop`).
+    """
+    hi = 0
+    lo = 0
+    for q in range(inv_n2.size):
+        r = inv_n2[q]
+        hi += a * r + dk <= sat_e
+        lo += s * r < min_e
+    bits = ((1 << hi) - 1) ^ ((1 << lo) - 1) if hi > lo else 0
+    return bits, hi
+
+
+def _plan_pixel_loop(a, dk, s, inv_n2, sat_e, min_e):
+    """The reference of :func:`_plan_pixel`: every stop tested (pure Python, for tests)."""
     bits = 0
     lead = 0
     ok = True

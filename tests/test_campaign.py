@@ -108,6 +108,7 @@ def test_worker_processes_give_the_same_campaign(tmp_path):
     plan = campaign.Plan(theta_i_deg=(10.0, 30.0, 50.0, 70.0), rotations_deg=(0.0, 90.0), seed=3)
     one = campaign.run(plan, tmp_path / "one", workers=1)
     two = campaign.run(plan, tmp_path / "two", workers=2)
+    assert one.timings_s["flush_raw"] >= 0.0 and two.timings_s["flush_raw"] >= 0.0
     for col in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "sigma"):
         np.testing.assert_array_equal(getattr(one.samples, col), getattr(two.samples, col))
     assert one.fit.params == two.fit.params

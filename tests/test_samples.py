@@ -80,3 +80,16 @@ def test_csv_rows_matches_savetxt(n, constant):
     back = np.loadtxt(io.StringIO(csv_rows(t)), delimiter=",", ndmin=2)
     np.testing.assert_array_equal(back, t.to_array())  # bit for bit, -0.0 included
     assert np.signbit(back[:, 1]).all()
+
+
+def test_atomic_write_not_durable_and_fsync_files(tmp_path):
+    from gonio.samples import atomic_write_bytes, fsync_files
+
+    paths = [atomic_write_bytes(tmp_path / "d" / f"f{k}.bin", bytes([k]) * 10, durable=False)
+             for k in range(3)]  # fmt: skip
+    assert [p.read_bytes() for p in paths] == [bytes([k]) * 10 for k in range(3)]
+    assert not list((tmp_path / "d").glob(".*.tmp"))  # no temporary file left behind
+    assert fsync_files(paths) == 3
+    assert fsync_files([]) == 0
+    with pytest.raises(FileNotFoundError):
+        fsync_files([tmp_path / "missing.bin"])
