@@ -484,3 +484,50 @@ def test_linear_rejects_parameters_that_are_not_linear():
         fit.fit(s, "ward", linear="rho_d")
     with pytest.raises(ValueError, match="no_such"):
         fit.fit(s, "ward", linear=["no_such"])
+
+
+def test_lafortune_random_starts_cycle_retro_lobes():
+    """Start k: exponents one per log stratum of [1, 200], sorted; retro lobes cycle through
+    none, each single lobe, then each pair (so every single-retro layout is tried)."""
+    from gonio.fit import _start_lafortune
+
+    params = {"lobes": [(-1.0, -1.0, 1.0, 10.0, 0.0)] * 3, "rho_d": 0.1}
+    rng = np.random.default_rng(0)
+    seen = []
+    for k in range(8):
+        st = _start_lafortune(params, rng, k)
+        lobes = st["lobes"]
+        ns = [lb[3] for lb in lobes]
+        assert ns == sorted(ns) and 1.0 <= ns[0] and ns[-1] <= 200.0
+        edges = np.exp(np.linspace(0.0, np.log(200.0), 4))
+        assert all(edges[i] <= ns[i] <= edges[i + 1] for i in range(3))
+        seen.append(tuple(i for i, lb in enumerate(lobes) if lb[0] > 0))  # C_x > 0: retro
+        assert all(lb[0] == lb[1] and lb[2] > 0 for lb in lobes)
+        assert 0.0 <= st["rho_d"] <= 0.5
+    assert seen == [(), (0,), (1,), (2,), (0, 1), (0, 2), (1, 2), (0, 1, 2)]
+
+
+def test_jacobian_ignores_a_jump_inside_the_step():
+    """A row with a jump (threshold) inside the difference step: the robust Jacobian keeps the
+    smooth derivative there, so an exactly degenerate pair stays rank-deficient."""
+    from gonio.fit import _covariance, _jacobian
+
+    rng = np.random.default_rng(0)
+    n = 200
+    u = rng.uniform(0.5, 2.0, n)
+    x = np.array([0.5, 6.0])  # (sigma, tau): the model depends on sigma/tau only
+    h_tau = 1e-6 * 1e-2 * 1e4  # the step _jacobian takes for tau with bounds [1e-4, 1e4]
+    thresh = np.full(n, 99.0)
+    thresh[7] = x[0] / (x[1] + 0.5 * h_tau)  # row 7 jumps inside the larger tau step only
+
+    def fun(p):
+        k = p[0] / p[1]
+        return u * k + 0.01 * (k > thresh)  # jump of 0.01 where the ratio passes a threshold
+
+    lb, ub = np.array([1e-4, 1e-4]), np.array([1e2, 1e4])
+    r0 = fun(x)
+    J = _jacobian(fun, x, lb, ub, r0)
+    exact = np.stack([u / x[1], -u * x[0] / x[1] ** 2], axis=1)
+    np.testing.assert_allclose(J, exact, rtol=1e-6)
+    _, ok, inf = _covariance(J)
+    assert not ok and inf.all()
