@@ -115,8 +115,8 @@ class Plan:
         point values, and only the selected pixels are merged. ``"average"``: the averaging
         thinning of :func:`gonio.calibration.thinning.thin` on every pixel, which widens
         fitted lobes. Measured (rolled brass, 21 θi × 2 rotations, default noise, seed 0):
-        select 123,711 samples, every parameter within 2.7 s.e. (ρd 0.010 %, α_y 0.010 %);
-        average 323,929 samples, α_x +0.047 % (+12 s.e.), α_y +0.062 % (+16 s.e.).
+        select 120,876 samples, every parameter within 1.5 s.e. (ρd 0.050 %, α_y 0.004 %);
+        average 323,690 samples, α_x +0.053 % (+13 s.e.), α_y +0.058 % (+15 s.e.).
     thinning : pairs (name, value), optional
         Keyword arguments of the thinning: for ``"select"`` ``base_level`` (5),
         ``peak_level`` (8), ``peak_fraction`` (0.1); for ``"average"`` those of
