@@ -87,6 +87,19 @@ def bench_size(size, repeat, model, skips=True):
     f64 = np.zeros(img.shape)
     out["copy_uint16_ms"] = _time(lambda: img.copy(), repeat)
     out["copy_float64_ms"] = _time(lambda: f64.copy(), repeat)
+    # lower bounds of any capture, in the same run: numpy's SIMD exp over the pixels that see
+    # the sample (Ward's one transcendental per pixel) and one standard normal per pixel
+    # from the capture's own generator (noise on)
+    from gonio.simulator import _kernels
+
+    lit = np.random.default_rng(0).uniform(-30.0, 0.0, g.idx.size)
+    buf = np.empty_like(lit)
+    out["exp_lit_pixels_ms"] = _time(lambda: np.exp(lit, out=buf), repeat)
+    z = np.empty(out["pixels"])
+    state = _kernels.seed_state(np.random.default_rng(0))
+    out["normals_all_pixels_ms"] = _time(lambda: _kernels.standard_normals(state, z), repeat)
+    for k in ("exp_lit_pixels", "normals_all_pixels"):
+        out[f"ratio_{k}_vs_copy_float64"] = out[f"{k}_ms"][2] / out["copy_float64_ms"][2]
     for k in ("off", "on"):  # CPU medians
         cap = out[f"capture_noise_{k}_ms"][2]
         out[f"ratio_noise_{k}_vs_copy_uint16"] = cap / out["copy_uint16_ms"][2]
@@ -369,7 +382,8 @@ def main(argv=None):
         print(f"\n== {r['size']}  ({r['candidate_pixels']} of {r['pixels']} pixels see the sample)")
         print(f"geometry trace (one-time, CPU) {r['geometry_ms']:9.1f} ms")
         for k in ("capture_noise_off_ms", "capture_noise_on_ms", "render_noise_off_ms",
-                  "copy_uint16_ms", "copy_float64_ms"):  # fmt: skip
+                  "copy_uint16_ms", "copy_float64_ms", "exp_lit_pixels_ms",
+                  "normals_all_pixels_ms"):  # fmt: skip
             med, mn, cpu = r[k]
             print(f"{k[:-3]:<30} {med:9.3f} ms (median)  {mn:8.3f} ms (min)  {cpu:8.3f} ms (CPU)")
         print(
@@ -378,6 +392,11 @@ def main(argv=None):
             f"{r['ratio_noise_off_vs_copy_float64']:.1f}x float64;  noise on "
             f"{r['ratio_noise_on_vs_copy_uint16']:.0f}x uint16, "
             f"{r['ratio_noise_on_vs_copy_float64']:.1f}x float64  (issue 8 target: <= 3x)"
+        )
+        print(
+            "lower bounds / float64 copy: numpy exp over the lit pixels "
+            f"{r['ratio_exp_lit_pixels_vs_copy_float64']:.1f}x, one normal per pixel "
+            f"{r['ratio_normals_all_pixels_vs_copy_float64']:.1f}x"
         )
         if r["skips"]:
             print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
