@@ -27,15 +27,16 @@ __all__ = ["PlotWorker", "warm_matplotlib"]
 
 def warm_matplotlib() -> None:
     """Import matplotlib's Agg backend and draw one small figure with what the campaign's
-    plots use (log axis, text, legend, colour bar, image, PNG encoding)."""
+    plots use (log axis with :func:`gonio.plots.log_axis`, text, legend, colour bar, image,
+    PNG encoding)."""
     import numpy as np
 
-    from gonio.plots import _figure
+    from gonio.plots import _figure, log_axis
 
     fig = _figure(2.0, 2.0)
     ax = fig.add_subplot(1, 2, 1)
     ax.plot([1.0, 2.0], [1.0, 10.0], "o-", label="θi = 0°")
-    ax.set_yscale("log")
+    log_axis(ax)
     ax.set_xlabel("θo (deg)")
     ax.set_title("warm-up")
     ax.legend(fontsize=7)

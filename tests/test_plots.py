@@ -86,3 +86,11 @@ def test_plots_write_pngs(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["h.png", "i.png", "r.png"]
     with pytest.raises(ValueError, match="empty"):
         plots.plot_hemisphere(s.subset(np.array([], dtype=int)), tmp_path / "e.png")
+
+
+def test_decade_labels_without_mathtext():
+    assert plots.decade_label(100.0) == "10²"
+    assert plots.decade_label(1e-3) == "10⁻³"
+    assert plots.decade_label(1.0) == "10⁰"
+    assert plots.decade_label(2e-3) == "0.002"
+    assert plots.decade_label(0.0) == "" and plots.decade_label(float("nan")) == ""
