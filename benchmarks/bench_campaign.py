@@ -165,7 +165,8 @@ def cold_runs(repeat: int) -> list[dict]:
     so start-up = wall − total."""
     import subprocess
 
-    code = "import sys; from gonio.cli import main; sys.exit(main(sys.argv[1:]))"
+    # the console script's own entry point (it ends with a quick exit, see console_main)
+    code = "from gonio.cli import console_main; console_main()"
     rows = []
     for k in range(repeat):
         with tempfile.TemporaryDirectory() as d:
