@@ -212,19 +212,48 @@ def compose_u16(
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _bg_u16(bg, dark, tk, t, full_well, inv_gain, black, max_dn, out):  # pragma: no cover
-    for i in range(out.size):
-        out[i] = _adc(bg[i] * tk + dark[i] * t, full_well, inv_gain, black, max_dn)
+def _store(e, adc):  # pragma: no cover - compiled
+    """``e`` as is (``adc`` None: float electrons) or through the linear ADC (``adc`` =
+    ``(full_well, inv_gain, black, max_dn)``); numba compiles one branch per type."""
+    if adc is None:
+        return e
+    return _adc(e, adc[0], adc[1], adc[2], adc[3])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _run_u16(
-    bg, dark, tk, t, resp, lit, g, isq, kdc, ksc, full_well, inv_gain, black, max_dn, out
-):  # pragma: no cover - compiled
+def _bg_run(bg, dark, tk, t, adc, out):  # pragma: no cover - compiled
+    for i in range(out.size):
+        out[i] = _store(bg[i] * tk + dark[i] * t, adc)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lit_run(bg, dark, tk, t, resp, lit, g, isq, kdc, ksc, adc, out):  # pragma: no cover
     for i in range(out.size):
         e = bg[i] * tk + dark[i] * t
         s = e + resp[i] * (kdc + ksc * g[i] * isq[i])
-        out[i] = _adc(s if lit[i] else e, full_well, inv_gain, black, max_dn)
+        out[i] = _store(s if lit[i] else e, adc)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _compose_runs(
+    bg, dark, tk, t, rpix, rj, resp, lit, g, isq, kdc, ksc, adc, out
+):  # pragma: no cover - compiled
+    """The image walked run by run (module docstring): background-only stretches, then
+    each run of candidate pixels; values stored by :func:`_store`."""
+    nr = rpix.size
+    nc = resp.size
+    p = 0
+    for r in range(nr):
+        a = rpix[r]
+        j0 = rj[r]
+        m = (rj[r + 1] if r + 1 < nr else nc) - j0
+        _bg_run(bg[p:a], dark[p:a], tk, t, adc, out[p:a])
+        _lit_run(
+            bg[a : a + m], dark[a : a + m], tk, t, resp[j0 : j0 + m], lit[j0 : j0 + m],
+            g[j0 : j0 + m], isq[j0 : j0 + m], kdc, ksc, adc, out[a : a + m],
+        )  # fmt: skip
+        p = a + m
+    _bg_run(bg[p:], dark[p:], tk, t, adc, out[p:])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -233,35 +262,8 @@ def compose_u16_runs(
 ):  # pragma: no cover - compiled
     """:func:`compose_u16` for unique candidates given as runs (module docstring): the same
     arithmetic per pixel, so the same image bit for bit."""
-    nr = rpix.size
-    nc = resp.size
-    p = 0
-    for r in range(nr):
-        a = rpix[r]
-        j0 = rj[r]
-        m = (rj[r + 1] if r + 1 < nr else nc) - j0
-        _bg_u16(bg[p:a], dark[p:a], tk, t, full_well, inv_gain, black, max_dn, out[p:a])
-        _run_u16(
-            bg[a : a + m], dark[a : a + m], tk, t, resp[j0 : j0 + m], lit[j0 : j0 + m],
-            g[j0 : j0 + m], isq[j0 : j0 + m], kdc, ksc, full_well, inv_gain, black, max_dn,
-            out[a : a + m],
-        )  # fmt: skip
-        p = a + m
-    _bg_u16(bg[p:], dark[p:], tk, t, full_well, inv_gain, black, max_dn, out[p:])
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _bg_float(bg, dark, tk, t, out):  # pragma: no cover - compiled
-    for i in range(out.size):
-        out[i] = bg[i] * tk + dark[i] * t
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _run_float(bg, dark, tk, t, resp, lit, g, isq, kdc, ksc, out):  # pragma: no cover
-    for i in range(out.size):
-        e = bg[i] * tk + dark[i] * t
-        s = e + resp[i] * (kdc + ksc * g[i] * isq[i])
-        out[i] = s if lit[i] else e
+    adc = (float(full_well), float(inv_gain), float(black), float(max_dn))
+    _compose_runs(bg, dark, tk, t, rpix, rj, resp, lit, g, isq, kdc, ksc, adc, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -269,20 +271,7 @@ def compose_float_runs(
     bg, dark, tk, t, rpix, rj, resp, lit, g, isq, kdc, ksc, out
 ):  # pragma: no cover - compiled
     """:func:`compose_float` for unique candidates given as runs (same arithmetic)."""
-    nr = rpix.size
-    nc = resp.size
-    p = 0
-    for r in range(nr):
-        a = rpix[r]
-        j0 = rj[r]
-        m = (rj[r + 1] if r + 1 < nr else nc) - j0
-        _bg_float(bg[p:a], dark[p:a], tk, t, out[p:a])
-        _run_float(
-            bg[a : a + m], dark[a : a + m], tk, t, resp[j0 : j0 + m], lit[j0 : j0 + m],
-            g[j0 : j0 + m], isq[j0 : j0 + m], kdc, ksc, out[a : a + m],
-        )  # fmt: skip
-        p = a + m
-    _bg_float(bg[p:], dark[p:], tk, t, out[p:])
+    _compose_runs(bg, dark, tk, t, rpix, rj, resp, lit, g, isq, kdc, ksc, None, out)
 
 
 # ---------------------------------------------------------------------------- random numbers
