@@ -72,8 +72,12 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> Non
     directions (~10 ms), less than loading numba and the compiled kernels into this process
     would take (~0.3 s).
     """
+    import signal
     from multiprocessing.connection import Pipe, wait
 
+    # the parent owns this process's lifetime (close(), or EOF when it dies): a Ctrl-C on
+    # the terminal reaches the whole process group and would print a traceback from here
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.environ["GONIO_NO_NUMBA"] = "1"
     if warm is not None:
         try:

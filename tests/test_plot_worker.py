@@ -86,3 +86,20 @@ def test_warm_matplotlib_draws():
     import sys
 
     assert "matplotlib.backends.backend_agg" in sys.modules
+
+
+def test_the_worker_ignores_ctrl_c(tmp_path):
+    """A Ctrl-C reaches the whole process group; the worker leaves it to its parent."""
+    import signal
+    import time
+
+    log = tmp_path / "log.txt"
+    with PlotWorker() as w:
+        w.submit(_append, log, "a")
+        w.wait()  # (the worker is past its start-up)
+        os.kill(w._proc.pid, signal.SIGINT)
+        time.sleep(0.1)
+        assert w._proc.is_alive()
+        w.submit(_append, log, "b")
+        w.wait()
+    assert log.read_text() == "ab"
