@@ -1086,9 +1086,9 @@ def fit(
     f = _predict_layout(layout, data, final)
     m = res.mask
     diff = f[m] - data.y[m]
-    rms = float(np.sqrt(np.mean(diff**2)))
+    rms = _rms(diff)
     pos = data.y[m] > 0
-    rms_rel = float(np.sqrt(np.mean((diff[pos] / data.y[m][pos]) ** 2))) if pos.any() else math.nan
+    rms_rel = _rms(diff[pos] / data.y[m][pos]) if pos.any() else math.nan
 
     stderr = dict.fromkeys(names, 0.0)
     for j, i in enumerate(free_idx):
@@ -1096,8 +1096,9 @@ def fit(
     at_bounds = [
         names[i]
         for j, i in enumerate(free_idx)
-        if np.isclose(x[j], lb[j], rtol=0, atol=1e-9 * max(1.0, abs(lb[j])))
-        or np.isclose(x[j], ub[j], rtol=0, atol=1e-9 * max(1.0, abs(ub[j])))
+        if any(
+            math.isfinite(b) and abs(x[j] - b) <= 1e-9 * max(1.0, abs(b)) for b in (lb[j], ub[j])
+        )
     ]
     if not np.isfinite(x).all():  # cannot happen with TRF, but never hand back NaN silently
         raise ValueError(f"fit of {_label(template)!r} produced non-finite parameters {final}")
@@ -1308,6 +1309,19 @@ class _VarPro:
 
             J[:, nl] = _jacobian(g, x[nl], self.lb[nl], self.ub[nl], r0)
         return J
+
+
+def _rms(r: NDArray) -> float:
+    """Root mean square without overflow (scaled by the largest magnitude): a fit stopped
+    far from the data (e.g. started at a parameter bound) has residuals whose squares
+    overflow; the rms is then the largest finite value or inf, never a warning."""
+    r = np.asarray(r, dtype=np.float64)
+    if r.size == 0:
+        return math.nan
+    big = float(np.max(np.abs(r)))
+    if not math.isfinite(big) or big == 0.0:
+        return big
+    return big * float(np.sqrt(np.mean((r / big) ** 2)))
 
 
 def _as_float(v: Any, key: str) -> float:

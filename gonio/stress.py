@@ -1,10 +1,14 @@
-"""Numerical stress tests: every model (and, later, every pipeline stage) on adversarial input.
+"""Numerical stress tests: every model and pipeline stage on adversarial input.
 
 ``gonio stress`` (issue 8) runs the registered *stages* in :data:`STAGES`. Each stage takes a
 :class:`StressConfig` and returns a :class:`StageResult`: how many cases it ran and, per
 subject (a model name, an image kind, a fit …), how many violations of each kind it saw.
-The ``models`` stage is built in; pipeline stages (images, mirror geometry D → 0 and D → R,
-fits started far from the truth) are added with :func:`register_stage`.
+The ``models`` stage is built in; the pipeline stages (``images``: saturated, black and
+constant images through eq. 2; ``geometry``: mirror geometry as D → 0 and D → R; ``fits``:
+fits started far from the truth) live in :mod:`gonio.stress_stages`, registered with
+:func:`register_stage` when this module is imported. Besides the kinds below they count
+``warning`` (a ``RuntimeWarning`` that reached the caller) and ``norm`` (a non-unit
+direction).
 
 Violation kinds (:data:`KINDS`):
 
@@ -660,3 +664,7 @@ def run(
             out["models"] = r.counts
     out["seconds"] = round(time.perf_counter() - t0, 3)
     return out
+
+
+# the pipeline stages register themselves (they import this module's StageResult)
+from gonio import stress_stages  # noqa: E402, F401

@@ -109,3 +109,42 @@ def test_cli_json_and_exit_code(tmp_path, capsys):
     assert data["unexpected"] == 0 and data["cases"] > 0
     assert data["models"]["oren_nayar"]["negative"] > 0
     assert "known: oren_nayar negative" in capsys.readouterr().out
+
+
+def test_pipeline_stages_small_are_clean():
+    """Images (saturated, black, constant brackets through eq. 2), mirror geometry (D → 0,
+    D → R) and fits started at the bound corners: no NaN, inf, error or warning."""
+    r = stress.run("small", stages=["images", "geometry", "fits"])
+    assert r["unexpected"] == 0, [st["examples"] for st in r["stages"].values()]
+    img = r["stages"]["images"]
+    assert img["cases"] == 2 * 3**3
+    sel = img["info"]["reduce_selected"]
+    assert sel["tables"] > 0 and sel["rejected"] > 0  # some reduce, the hopeless ones refuse
+    geo = r["stages"]["geometry"]
+    assert any("D/R = 1e-09" in k for k in geo["info"])
+    assert all(v["candidates"] > 0 for v in geo["info"].values())
+    fits = r["stages"]["fits"]["info"]
+    assert fits["lambert"]["far_starts_recovered"] == "2/2"
+
+
+def test_pipeline_stages_count_what_leaks(monkeypatch):
+    """A reduction that leaks a NaN σ and a RuntimeWarning is counted, not passed."""
+    import warnings
+
+    import gonio.calibration.reduce as red
+
+    real = red.reduce_capture
+
+    def leaky(*a, **k):
+        out = real(*a, **k)
+        warnings.warn("overflow encountered", RuntimeWarning, stacklevel=1)
+        out.samples.sigma[0] = np.nan
+        return out
+
+    monkeypatch.setattr(red, "reduce_capture", leaky)
+    r = stress.run("small", stages=["images"])
+    c = r["stages"]["images"]["counts"]["reduce_capture"]
+    tables = r["stages"]["images"]["info"]["reduce_capture"]["tables"]
+    assert c["nan"] == tables and c["warning"] == tables
+    assert r["unexpected"] == 2 * tables
+    assert r["stages"]["images"]["counts"]["reduce_selected"] == {}

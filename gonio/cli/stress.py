@@ -6,8 +6,9 @@ from gonio.cli._common import add_json_option, format_table, write_json
 
 COMMAND = "stress"
 HELP = (
-    "sweep every model over adversarial directions and parameters; count NaN, inf, negative, "
-    "reciprocity and energy violations (exit 1 if any is unexpected)"
+    "sweep every model over adversarial directions and parameters, and the pipeline over "
+    "saturated/black/constant images, D -> 0 and D -> R, far-off fit starts; count NaN, inf, "
+    "negative, reciprocity and energy violations (exit 1 if any is unexpected)"
 )
 
 
@@ -54,8 +55,15 @@ def run(args) -> int:
         elif "f" in w:
             fig = f" e.g. f = {w['f']} at wi {w.get('wi')}, wo {w.get('wo')}"
         print(f"known: {k['model']} {k['kind']} x{k['count']}:{fig}\n       ({k['issue']})")
-    for e in r["stages"]["models"]["examples"][:20]:
-        print(f"UNEXPECTED {e['subject']} {e['kind']}: params {e['params']}: {e['detail']}")
+    for name, st in r["stages"].items():
+        if name != "models":
+            subjects = ", ".join(
+                f"{subj} {sum(c.values())}" for subj, c in st["counts"].items()
+            )
+            print(f"stage {name}: {st['cases']} cases, {st['unexpected']} unexpected ({subjects})")
+    for st in r["stages"].values():
+        for e in st["examples"][:20]:
+            print(f"UNEXPECTED {e['subject']} {e['kind']}: params {e['params']}: {e['detail']}")
     print(
         f"{r['cases']} cases, {r['unexpected']} unexpected violation(s), "
         f"size {r['size']}, {r['seconds']:.1f} s"
