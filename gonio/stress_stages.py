@@ -128,7 +128,7 @@ def image_stage(cfg: StressConfig) -> StageResult:
         for name, reduce in reductions.items():
             res.cases += 1
             label = f"{name} sample={km} standard={ks} background={kb}"
-            red, exc, n_warn = _guarded(lambda r=reduce: r(caps))
+            red, exc, n_warn = _guarded(lambda r=reduce, c=caps: r(c))
             _violate(res, name, "warning", n_warn, label)
             if isinstance(exc, ValueError):
                 outcomes[name]["rejected"] += 1
@@ -183,9 +183,7 @@ def geometry_stage(cfg: StressConfig) -> StageResult:
                     sample_radius=min(0.008, d),
                 )  # fmt: skip
                 g = inst.geometry
-                tr, pr = eq3_reflection_angles(
-                    theta_c, np.zeros_like(theta_c), radius, d, mirror=k
-                )
+                tr, pr = eq3_reflection_angles(theta_c, np.zeros_like(theta_c), radius, d, mirror=k)
                 return g, tr, pr
 
             res.cases += 1
@@ -259,7 +257,7 @@ def fit_stage(cfg: StressConfig) -> StageResult:
         for label, kw in starts.items():
             res.cases += 1
             t0 = time.perf_counter()
-            r, exc, n_warn = _guarded(lambda kw=kw: fit(samples, name, **kw))
+            r, exc, n_warn = _guarded(lambda kw=kw, s=samples, m=name: fit(s, m, **kw))
             _violate(res, name, "warning", n_warn, f"start {label}")
             if exc is not None:
                 kind = "rejected" if isinstance(exc, ValueError) else "error"

@@ -57,9 +57,7 @@ def run(args) -> int:
         print(f"known: {k['model']} {k['kind']} x{k['count']}:{fig}\n       ({k['issue']})")
     for name, st in r["stages"].items():
         if name != "models":
-            subjects = ", ".join(
-                f"{subj} {sum(c.values())}" for subj, c in st["counts"].items()
-            )
+            subjects = ", ".join(f"{subj} {sum(c.values())}" for subj, c in st["counts"].items())
             print(f"stage {name}: {st['cases']} cases, {st['unexpected']} unexpected ({subjects})")
     for st in r["stages"].values():
         for e in st["examples"][:20]:
