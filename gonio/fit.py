@@ -1115,7 +1115,7 @@ def fit(
         bounds={n: (float(lo[i]), float(hi[i])) for i, n in enumerate(names)},
         converged=converged,
         identifiable=rank_ok,
-        message=str(best.message),
+        message=str(best.message) + _chi2_note(chi2_dof, data.sigma is not None),
         rms=rms,
         rms_relative=rms_rel,
         chi2=chi2,
@@ -1309,6 +1309,23 @@ class _VarPro:
 
             J[:, nl] = _jacobian(g, x[nl], self.lb[nl], self.ub[nl], r0)
         return J
+
+
+#: chi2/dof above which, with the samples' own σ, :func:`fit` adds a note to the message
+CHI2_NOTE = 10.0
+
+
+def _chi2_note(chi2_dof: float, has_sigma: bool) -> str:
+    """A note for a fit whose misfit its σ cannot explain: the optimizer converged (that is
+    what ``converged`` says) but probably not to the fit (measured: Ward started at the
+    lower corner of its bounds without the data guess stops at chi2/dof 493, the guessed
+    start at 0.99, ``gonio stress --stages fits``)."""
+    if not has_sigma or not (chi2_dof > CHI2_NOTE):
+        return ""
+    return (
+        f"; note: chi2/dof = {chi2_dof:.3g} with the samples' own sigma: a local minimum or a "
+        "model that cannot describe the data (try n_starts= or init=)"
+    )
 
 
 def _rms(r: NDArray) -> float:

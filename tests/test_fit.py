@@ -531,3 +531,27 @@ def test_jacobian_ignores_a_jump_inside_the_step():
     np.testing.assert_allclose(J, exact, rtol=1e-6)
     _, ok, inf = _covariance(J)
     assert not ok and inf.all()
+
+
+def test_a_fit_stuck_far_from_the_data_says_so():
+    """Started at the lower corner of Ward's bounds without the data guess, the optimizer
+    stops at a misfit its σ cannot explain: converged (the optimizer's word) but noted."""
+    from gonio import brdf
+    from gonio.fit import CHI2_NOTE, fit
+    from gonio.geometry import to_vector
+    from gonio.samples import BRDFSamples
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    wi = to_vector(rng.uniform(0.0, 1.4, n), rng.uniform(-np.pi, np.pi, n))
+    wo = to_vector(np.arccos(rng.uniform(0.05, 1.0, n)), rng.uniform(-np.pi, np.pi, n))
+    truth = brdf.create("ward", rho_d=0.1, rho_s=0.33, alpha_x=0.05, alpha_y=0.16)
+    f = truth(wi, wo)
+    s = BRDFSamples.from_directions(wi, wo, f * (1 + 0.01 * rng.standard_normal(n)), 0.01 * f)
+    good = fit(s, "ward")
+    assert good.chi2_dof < 2 and "note:" not in good.message
+    spec = brdf.spec("ward").params
+    low = {k: p.lower + 1e-6 * (p.upper - p.lower) for k, p in spec.items() if p.kind == "float"}
+    bad = fit(s, "ward", init=low, guess=False)
+    assert bad.chi2_dof > CHI2_NOTE and "local minimum" in bad.message
+    assert np.isfinite(list(bad.params.values())).all()

@@ -86,6 +86,8 @@ def run(args) -> int:
         f"{r.model_name}: {'converged' if r.converged else 'NOT converged'}; "
         f"n = {r.n_samples}, rms = {r.rms:.4g} sr^-1, chi2/dof = {r.chi2_dof:.4g}"
     )
+    if "; note: " in r.message:
+        print("note:" + r.message.split("; note:", 1)[1])
     if args.json:
         d = r.to_dict()
         d["samples"] = str(args.samples)
