@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from gonio._blas import single_thread_blas
 from gonio.samples import BRDFSamples, atomic_write_bytes
 
 __all__ = [
@@ -556,6 +557,7 @@ def _summarise(
 
 
 # ----------------------------------------------------------------------------- campaign
+@single_thread_blas
 def run_cornell_campaign(
     material: str = "garnet_red_paint",
     *,
