@@ -285,7 +285,7 @@ def bench_noise(repeat):
     z = np.empty(flat.size)
     img = np.empty(flat.size, dtype=np.uint16)
     st = _kernels.seed_state(rng)
-    adc = (sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn))
+    adc = sen.linear_adc
     out = {
         "threshold_e": sen.normal_threshold,
         "fast_ms": _time(lambda: sen.add_noise(e, rng), repeat)[2],

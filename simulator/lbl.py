@@ -855,31 +855,17 @@ class LBLInstrument:
         if kernel:
             from gonio.simulator import _kernels
 
-            adc = (sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn))
+            # candidates as runs (unique pixels), else the pixel index (supersampled repeats)
+            runs = sc.runs is not None
+            where = sc.runs if runs else (sc.idx,)
+            head = (sc.bg, sc.dark, tk, sc.exposure, *where, sc.rc, sc.lit, sc.g, sc.isq, kdc, ksc)
             if digitise and sc.delta is None and sen.linear:
                 img = np.empty(n, dtype=np.uint16)
-                if sc.runs is not None:
-                    _kernels.compose_u16_runs(
-                        sc.bg, sc.dark, tk, sc.exposure, *sc.runs, sc.rc, sc.lit, sc.g, sc.isq,
-                        kdc, ksc, *adc, img,
-                    )  # fmt: skip
-                else:
-                    _kernels.compose_u16(
-                        sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq,
-                        kdc, ksc, *adc, img,
-                    )  # fmt: skip
+                compose_u16 = _kernels.compose_u16_runs if runs else _kernels.compose_u16
+                compose_u16(*head, *sen.linear_adc, img)
                 return img
             out = np.empty(n)
-            if sc.runs is not None:
-                _kernels.compose_float_runs(
-                    sc.bg, sc.dark, tk, sc.exposure, *sc.runs, sc.rc, sc.lit, sc.g, sc.isq, kdc,
-                    ksc, out,
-                )  # fmt: skip
-            else:
-                _kernels.compose_float(
-                    sc.bg, sc.dark, tk, sc.exposure, sc.idx, sc.rc, sc.lit, sc.g, sc.isq, kdc,
-                    ksc, out,
-                )  # fmt: skip
+            (_kernels.compose_float_runs if runs else _kernels.compose_float)(*head, out)
         else:
             out = sc.bg * tk + sc.dark * sc.exposure
             sig = sc.rc * sc.lit * (kdc + ksc * sc.g * sc.isq)
@@ -911,7 +897,7 @@ class LBLInstrument:
             img = np.empty(h * w, dtype=np.uint16)
             _kernels.noise_u16(
                 e, _kernels.seed_state(rng), sen.normal_threshold, sen.read_noise,
-                sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn), img,
+                *sen.linear_adc, img,
             )  # fmt: skip
             return img.reshape(h, w), self.lens
         e = self._compose(sc, f_number)
@@ -969,10 +955,7 @@ class LBLInstrument:
                 from gonio.simulator import _kernels
 
                 img = np.empty(e.size, dtype=np.uint16)
-                _kernels.digitise_linear(
-                    e.ravel(), sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn),
-                    img,
-                )  # fmt: skip
+                _kernels.digitise_linear(e.ravel(), *sen.linear_adc, img)
             else:
                 img = sen.digitise(e)
             return img.reshape(self.lens.height, self.lens.width), self.lens

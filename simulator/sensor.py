@@ -191,6 +191,13 @@ class Sensor:
         return float(min(self.black_level + x, self.max_dn))
 
     @property
+    def linear_adc(self) -> tuple[float, float, float, float]:
+        """``(full_well, 1/gain, black_level, max_dn)``: the linear ADC as the compiled
+        kernels take it (:func:`gonio.simulator._kernels.digitise_linear` and the passes that
+        fuse it)."""
+        return (self.full_well, 1.0 / self.gain, self.black_level, float(self.max_dn))
+
+    @property
     def _x_max(self) -> float:
         return float(self.max_dn - self.black_level)
 

@@ -135,7 +135,7 @@ def test_run_kernels_equal_the_per_entry_kernels_bit_for_bit():
     )
     for inst in insts:
         sen = inst.sensor
-        adc = (sen.full_well, 1.0 / sen.gain, sen.black_level, float(sen.max_dn))
+        adc = sen.linear_adc
         for model in models:
             sc = inst._scene("brdf", model, TH, 0.7, 0.01, None, None)
             assert sc.runs is not None
