@@ -522,7 +522,7 @@ def _plan_pixel(a, dk, s, inv_n2, sat_e, min_e):  # pragma: no cover - compiled
     ``a·r + dk`` (rounding is monotone) stays <= ``sat_e`` for a prefix of the stops, ``hi``
     of them, and the signal ``s·r`` reaches ``min_e`` from stop ``lo`` on: the usable stops
     are ``lo .. hi-1`` and the leading count is ``hi``. Two branch-free counts instead of a
-    branchy loop (the same bits as testing every stop, :func:`_plan_pixel_loop`).
+    branchy loop (the same bits as testing every stop; tests/simulator/test_kernels_plan.py).
     """
     hi = 0
     lo = 0
@@ -532,24 +532,6 @@ def _plan_pixel(a, dk, s, inv_n2, sat_e, min_e):  # pragma: no cover - compiled
         lo += s * r < min_e
     bits = ((1 << hi) - 1) ^ ((1 << lo) - 1) if hi > lo else 0
     return bits, hi
-
-
-def _plan_pixel_loop(a, dk, s, inv_n2, sat_e, min_e):
-    """The reference of :func:`_plan_pixel`: every stop tested (pure Python, for tests)."""
-    bits = 0
-    lead = 0
-    ok = True
-    for q in range(inv_n2.size):
-        r = inv_n2[q]
-        tot = a * r + dk
-        if tot <= sat_e:
-            if ok:
-                lead += 1
-            if s * r >= min_e:
-                bits |= 1 << q
-        else:
-            ok = False
-    return bits, lead
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
