@@ -580,9 +580,9 @@ def _run(
                 saved = io_thread.submit(_save_samples, outp, samples, parts)
             if raw is not None:
                 flushed = io_thread.submit(_flush_raw, raw)
-            from threadpoolctl import threadpool_limits
+            from gonio._blas import SingleThreadBLAS
 
-            with threadpool_limits(limits=1, user_api="blas"):  # scipy's too, loaded by now
+            with SingleThreadBLAS():  # scipy's BLAS too (the outer limit predates its import)
                 result, compare = _fit_all(plan, samples, truth_model, timings, quiet, stream)
             if saved is not None:
                 timings["save_samples"] = saved.result()

@@ -255,15 +255,14 @@ def decade_label(value: float, _pos: Any = None) -> str:
     return "10" + str(k).translate(_SUPERSCRIPT)
 
 
-def log_axis(ax: Any, which: str = "y") -> None:
-    """Make the ``which`` axis of ``ax`` logarithmic with decade ticks labelled by
+def log_axis(ax: Any) -> None:
+    """Make the y axis of ``ax`` logarithmic with decade ticks labelled by
     :func:`decade_label` and no minor ticks (they took half the drawing time)."""
     from matplotlib.ticker import FuncFormatter, NullLocator
 
-    (ax.set_yscale if which == "y" else ax.set_xscale)("log")
-    axis = ax.yaxis if which == "y" else ax.xaxis
-    axis.set_major_formatter(FuncFormatter(decade_label))
-    axis.set_minor_locator(NullLocator())
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(FuncFormatter(decade_label))
+    ax.yaxis.set_minor_locator(NullLocator())
 
 
 def plot_residuals(
