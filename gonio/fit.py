@@ -1365,8 +1365,7 @@ def _jacobian(fun: Callable, x: NDArray, lb: NDArray, ub: NDArray, r0: NDArray) 
     for j in range(x.size):
         span = ub[j] - lb[j]
         h = 1e-6 * max(abs(x[j]), 1e-2 * span if math.isfinite(span) else 1e-3, 1e-6)
-        cols = [_difference(fun, x, lb, ub, r0, j, step) for step in (h, h / 8.0)]
-        a, b = cols
+        a, b = (_difference(fun, x, lb, ub, r0, j, step) for step in (h, h / 8.0))
         bad = np.abs(a - b) > 1e-3 * (np.abs(a) + np.abs(b)) + 1e-300
         J[:, j] = np.where(bad & (np.abs(b) < np.abs(a)), b, a)
     return J

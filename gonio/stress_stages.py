@@ -260,10 +260,10 @@ def fit_stage(cfg: StressConfig) -> StageResult:
             r, exc, n_warn = _guarded(lambda kw=kw, s=samples, m=name: fit(s, m, **kw))
             _violate(res, name, "warning", n_warn, f"start {label}")
             if exc is not None:
-                kind = "rejected" if isinstance(exc, ValueError) else "error"
-                if kind == "error":
-                    _violate(res, name, "error", 1, f"start {label}: {type(exc).__name__}: {exc}")
-                chi2[label] = {"error": f"{type(exc).__name__}: {exc}"}
+                msg = f"{type(exc).__name__}: {exc}"
+                if not isinstance(exc, ValueError):  # (a ValueError is a clear refusal)
+                    _violate(res, name, "error", 1, f"start {label}: {msg}")
+                chi2[label] = {"error": msg}
                 continue
             vals = np.array([v for v in r.params.values() if isinstance(v, float)])
             ses = np.array([v for v in r.stderr.values() if isinstance(v, float)])
