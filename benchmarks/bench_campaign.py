@@ -10,6 +10,12 @@ Usage::
 
 Every run goes through the whole chain (simulated LBL captures → eq. 2 reduction → fit).
 Nothing here is asserted; the numbers are printed (and optionally saved) for the notes.
+
+References
+----------
+.. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
+   approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
+   https://doi.org/10.1145/258734.258801
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ def ward_table_materials(latex: bool = False) -> list[str]:
 
 
 #: Lafortune et al. table 1: blue paint, three lobes (C_x = C_y, C_z, n) and "Diffuse" 0.13
-#: (002_f0198a78c5ab063e.txt §6.2); there is no preset of it, so it is measured as a user BRDF.
+#: (Lafortune et al. 1997, §6.2); there is no preset of it, so it is measured as a user BRDF.
 BLUE_PAINT = dict(
     lobes=[(0.86, 0.86, 0.77, 18.6), (-0.41, -0.41, 0.018, 2.58), (-1.03, -1.03, 0.70, 63.8)],
     rho_d=0.13,

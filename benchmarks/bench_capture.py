@@ -234,14 +234,14 @@ def bench_campaign_stage(noise, repeat=3):
     from gonio import campaign, materials
 
     plan = campaign.Plan(plots=False).resolved()
-    inst = campaign._SimulatedLBL(plan).inst
+    inst = campaign.lbl._SimulatedLBL(plan).inst
     truth = materials.get(plan.material)
 
     def stage():
         n = 0
         for th in plan.theta_i_deg:
             ti = math.radians(th)
-            s = campaign.capture_seed(plan.seed, campaign._fmt_key(th))
+            s = campaign.capture_seed(plan.seed, campaign.lbl._fmt_key(th))
             n += len(inst.bracket("standard", ti, 0.0, rng=s, noise=noise))
             n += len(inst.bracket(None, ti, 0.0, rng=s + 1, noise=noise))
             for rot in plan.rotations_deg:

@@ -7,7 +7,12 @@ positions per θi, ordered, noise on), the time per measurement, the cost of the
 integration with and without an adaptive skip at tolerance 1e-3 (off by default; the largest
 change it makes), and
 the estimated real-instrument run time from stage speeds and the simulated integration times,
-to compare with the ≈11 hours of 000_f6f2403beaa91ee8.txt §5.1.
+to compare with the ≈11 hours of Li and Torrance 2005, §5.1.
+
+References
+----------
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import numpy as np
 from gonio.simulator.cornell import CornellConfig, CornellInstrument, simulate_campaign
 from gonio.simulator.cornell_plans import estimate_run_time, hemispherical_plan, order_plan
 
-from gonio.samples import atomic_write_bytes
+from gonio.io.atomic import atomic_write_bytes
 
 
 def bench(material: str, n: int) -> dict:

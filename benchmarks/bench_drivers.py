@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
     for k, v in res.items():
         print(f"{k:<26} median {v['median_ms']:8.3f} ms   p95 {v['p95_ms']:8.3f} ms   (n={v['n']})")
     if args.json:
-        from gonio.samples import atomic_write_bytes
+        from gonio.io.atomic import atomic_write_bytes
 
         atomic_write_bytes(args.json, (json.dumps(res, indent=2) + "\n").encode())
     return res

@@ -1,9 +1,14 @@
-"""Eq. 3 (003_0632ad07325ce89d.txt) against exact ray tracing: angular error table.
+"""Eq. 3 (Ward 1992) against exact ray tracing: angular error table.
 
 Run: ``python benchmarks/bench_eq3.py [--size 512] [--json out.json]``
 
 For each mirror and D/R, the angle between eq. 3's reflected direction and the exactly traced
 one, over every pixel of a ``size × size`` equidistant 180° fisheye image.
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from gonio.cornell_campaign import identifiability_scan, run_cornell_campaign
+from gonio.campaign.cornell import identifiability_scan, run_cornell_campaign
 
 MATERIALS = (
     "aluminized_non_glare_glass",
@@ -207,8 +207,8 @@ def served(plan: str, material: str, max_geometries: int | None, theta_i: float 
     import sys
     import tempfile
 
-    from gonio.cornell_campaign import build_plan
-    from gonio.hardware import open_served_rig, run_cornell_measurements
+    from gonio.campaign.cornell import build_plan
+    from gonio.campaign.drivers import open_served_rig, run_cornell_measurements
 
     kw = {"theta_i_deg": (theta_i,)} if theta_i is not None else {}
     p = build_plan(plan, max_geometries=max_geometries, **kw)

@@ -17,11 +17,16 @@ per evaluation for a grey model — timed right before each model in the same ru
 ratio model/copy survives a noisy machine. Each time is the best of ``--repeat`` runs after a
 warm-up call (numba compilation excluded).
 
-The ordering is compared with Li & Torrance's Table 4 (000_f6f2403beaa91ee8.txt §5.3: 10⁶
+The ordering is compared with Li & Torrance's Table 4 (Li and Torrance 2005, §5.3: 10⁶
 evaluations in Java on a Pentium III 550 MHz, seconds): Blinn-Phong 1.1, Ward 2.0-2.1,
 Lafortune 2.3-3.9, Cook-Torrance 3.3-3.5, Neumann-Neumann 3.5-4.0, constructed (Li-Torrance)
 models 4.3-6.8 (He-Torrance 59-122 s has no counterpart here). For a row matched by several
 gonio models (Neumann-Neumann) the median of their times is used.
+
+References
+----------
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
 """
 
 from __future__ import annotations
@@ -73,7 +78,7 @@ def _make(name: str):
     from gonio import brdf
 
     if name == "tabulated":
-        from gonio.merl import SHAPE
+        from gonio.io.merl import SHAPE
 
         table = np.random.default_rng(1).random(SHAPE) * 0.3
         return brdf.create("tabulated", data=table)

@@ -7,8 +7,8 @@ Usage::
 1. Runs SPEC (default ``benchmarks/sweeps/campaign_minute.toml``: 120 full campaigns, over a
    minute in-process on the shared 2-core VM) in-process, on ``--workers`` local processes
    (``executor="process"``) and on a ``LocalCluster`` of ``--workers`` processes started by
-   :func:`gonio.sweep.dask_local_cluster` (what ``gonio sweep --dask-local N`` uses), each into
-   a fresh folder, and checks that the three ``results.csv`` are byte-identical.
+   :func:`gonio.campaign.sweep.dask_local_cluster` (what ``gonio sweep --dask-local N`` uses),
+   each into a fresh folder, and checks that the three ``results.csv`` are byte-identical.
 2. Runs ``--noop`` trivial tasks (each writes only its ``sweep_task.json``) all three ways: the
    wall time per task of a sweep that does no work is the executor's per-task overhead.
 
@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from gonio import sweep
+from gonio.campaign import sweep
 
 
 def noop_task(task: dict, out_dir: Path) -> dict:
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     with sweep.dask_local_cluster(args.workers) as client:
-        client.run(lambda: __import__("gonio.sweep"))  # same warm imports as in-process
+        client.run(lambda: __import__("gonio.campaign.sweep"))  # same warm imports as in-process
         report["cluster_startup_s"] = time.perf_counter() - t0
         _timed(
             f"LocalCluster({args.workers})",

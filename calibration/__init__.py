@@ -3,7 +3,12 @@
 Eq. 2 radiometry (:mod:`.radiometry`), exposure merging (:mod:`.merge`), fisheye lens
 calibration with ChArUco (:mod:`.lens`), angle recovery by eq. 3 or exact tracing
 (:mod:`.angles`), data thinning (:mod:`.thinning`) and the reduction pipeline
-(:mod:`.reduce`). References: 003_0632ad07325ce89d.txt (Ward 1992) §3.2, eq. 2 and eq. 3.
+(:mod:`.reduce`). References: Ward 1992 §3.2, eq. 2 and eq. 3.
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
 """
 
 from gonio.calibration.angles import MirrorGeometry, reflection_directions, trace

@@ -1,13 +1,13 @@
 """Angle recovery: pixel → camera direction → reflection direction → sample frame.
 
-Ward's two steps (003_0632ad07325ce89d.txt §3.2): first the lens mapping from image points to
+Ward's two steps (Ward 1992, §3.2): first the lens mapping from image points to
 the lens incident direction (a calibrated fisheye model, :mod:`gonio.simulator.lenses` /
 :mod:`gonio.calibration.lens`), then the reflection angles at the target from the camera
 angles — by eq. 3 (an approximation for a hemisphere, exact for the hemi-ellipsoid whose foci
 are the lens and sample centres), or by the exact traced map once the mirror geometry is
 calibrated (:class:`MirrorGeometry`, :func:`trace`).
 
-Frames (``../shared/DESIGN.md`` and the simulator's notes): the dome frame has its origin at
+Frames (``docs/architecture.md`` and the simulator's notes): the dome frame has its origin at
 the sphere / ellipsoid centre, ``z`` up the dome axis, ``x`` "right" (φ = 0); the lens centre
 is at ``C = (0, −D, 0)`` and the sample centre at ``S = (0, +D, 0)``, both looking up ``+z``.
 The nominal camera frame equals the dome frame. The sample frame is the dome frame turned by
@@ -19,7 +19,10 @@ calibration (:mod:`gonio.calibration.mirror`) fits, and a cross-check of the sim
 
 References
 ----------
-003_0632ad07325ce89d.txt §3.2, eq. 3 and Figure 3.
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3.2, eq. 3 and Figure 3.
 """
 
 from __future__ import annotations

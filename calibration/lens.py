@@ -1,6 +1,6 @@
 """Fisheye lens calibration with a ChArUco board and OpenCV's ``cv2.fisheye`` model.
 
-Ward (003_0632ad07325ce89d.txt §3.2) leaves the first step of angle recovery — "the mapping from
+Ward (1992, §3.2) leaves the first step of angle recovery — "the mapping from
 image point locations to the lens incident direction" — to a measurement. This module makes that
 measurement the way a lab would today:
 
@@ -20,7 +20,10 @@ OpenCV 5 notes: flags are ``cv2.CALIB_*``; per-view points are float64 arrays of
 
 References
 ----------
-003_0632ad07325ce89d.txt §3.2 (lens mapping "easily measured"). J. Kannala, S. Brandt, "A generic
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3.2 (lens mapping "easily measured"). J. Kannala, S. Brandt, "A generic
 camera model and calibration method for conventional, wide-angle, and fish-eye lenses", IEEE
 PAMI 28(8), 2006 (OpenCV's fisheye model).
 """
@@ -391,7 +394,7 @@ def write_lens_calibration(cal: LensCalibration, path: str | os.PathLike) -> Pat
     """Write a lens-calibration JSON file atomically."""
     import json
 
-    from gonio.samples import atomic_write_bytes
+    from gonio.io.atomic import atomic_write_bytes
 
     return atomic_write_bytes(path, (json.dumps(cal.to_dict(), indent=2) + "\n").encode())
 

@@ -16,7 +16,10 @@ Two cases, as a lab would meet them:
 
 References
 ----------
-003_0632ad07325ce89d.txt (Ward 1992) §3.2: "two or more f-stops may be used to capture the full
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992 §3.2: "two or more f-stops may be used to capture the full
 dynamic range of the BRDF, there is often redundant information where the useful ranges of
 exposures overlap". P. Debevec and J. Malik, "Recovering High Dynamic Range Radiance Maps from
 Photographs", SIGGRAPH 1997 (OpenCV's ``CalibrateDebevec`` / ``MergeDebevec``).

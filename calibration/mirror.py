@@ -11,7 +11,10 @@ ruler measurement) and ``D`` is reported in its units.
 
 References
 ----------
-003_0632ad07325ce89d.txt §3.2, eq. 3 and Figure 3 (the geometry being calibrated).
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3.2, eq. 3 and Figure 3 (the geometry being calibrated).
 """
 
 from __future__ import annotations

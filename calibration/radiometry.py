@@ -23,7 +23,10 @@ Pixels where the standard is not significantly above the background are masked, 
 
 References
 ----------
-003_0632ad07325ce89d.txt (Ward 1992) §3.2, eq. 2: calibration against a diffuse standard and a
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992 §3.2, eq. 2: calibration against a diffuse standard and a
 background measurement (source on, no sample).
 """
 
@@ -364,7 +367,7 @@ def eq2(
 
     References
     ----------
-    003_0632ad07325ce89d.txt §3.2, eq. 2.
+    Ward 1992, §3.2, eq. 2.
     """
     rho_standard = _pos(rho_standard, "rho_standard")
     if rho_standard > 1.0:

@@ -20,7 +20,10 @@ calibration file and a mirror calibration if the lab made them. See ``/work/note
 
 References
 ----------
-003_0632ad07325ce89d.txt (Ward 1992) §3.2: eq. 2, eq. 3, data thinning.
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992 §3.2: eq. 2, eq. 3, data thinning.
 """
 
 from __future__ import annotations
@@ -116,7 +119,7 @@ def load_capture(
     dark_paths: Sequence[str | os.PathLike | None] | None = None,
 ) -> Capture:
     """Read image files and their JSON side-cars (``image.png.json``) into a :class:`Capture`."""
-    from gonio.imageio import read_image
+    from gonio.io.images import read_image
 
     if isinstance(paths, str | os.PathLike):
         paths = [paths]

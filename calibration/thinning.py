@@ -23,7 +23,10 @@ bounds the error thinning introduces (the benchmark measures that error against 
 
 References
 ----------
-003_0632ad07325ce89d.txt (Ward 1992) §3.2, last paragraph (thinning before fitting).
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992 §3.2, last paragraph (thinning before fitting).
 P. Shirley, K. Chiu, "A low distortion map between disk and square", JGT 2(3), 1997.
 """
 

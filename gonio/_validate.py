@@ -2,7 +2,7 @@
 
 Every public function that takes user arrays or parameters funnels them through here so that
 bad input raises :class:`ValueError` naming the argument, the value and what was expected
-(``../shared/DESIGN.md``, Conventions).
+(``docs/architecture.md``, Conventions).
 """
 
 from __future__ import annotations

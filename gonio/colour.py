@@ -1,7 +1,7 @@
 """Spectra of the 31 Cornell bands (400-700 nm, 10 nm) to CIE XYZ and linear sRGB.
 
 Li & Torrance measure "31 convolved wavelength samples" and "also convert them to RGB values"
-(000_f6f2403beaa91ee8.txt §5.1). This module does that conversion with the CIE tables shipped
+(Li and Torrance 2005, §5.1). This module does that conversion with the CIE tables shipped
 here as constants (31 rows, small enough to read):
 
 * CIE 1931 2° standard observer x̄, ȳ, z̄ (CIE 15:2004 "Selected colorimetric tables", 5 nm
@@ -22,6 +22,11 @@ multiplication by the white.
 >>> from gonio import colour
 >>> np.round(colour.spectrum_to_linear_srgb(np.full(31, 0.5)), 6).tolist()
 [0.5, 0.5, 0.5]
+
+References
+----------
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Directions, frames and hemisphere sampling.
 
-Conventions (``../shared/DESIGN.md``): the local frame is right-handed with z the surface
+Conventions (``docs/architecture.md``): the local frame is right-handed with z the surface
 normal and x the anisotropy direction; azimuth is measured from +x towards +y. Directions are
 unit vectors pointing *away* from the surface, arrays of shape ``(..., 3)``. Angles in radians.
 
@@ -15,9 +15,14 @@ Degenerate cases are defined, never NaN:
 
 References
 ----------
-003_0632ad07325ce89d.txt (Ward 1992), eq. 5b and its vector substitutions (half vector).
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+
+Ward 1992, eq. 5b and its vector substitutions (half vector).
 P. Shirley and K. Chiu, "A low distortion map between disk and square", JGT 2(3), 1997 —
-the map used by 000_f6f2403beaa91ee8.txt (Li & Torrance 2005) §5.1 for its 441-position
+the map used by Li and Torrance 2005 §5.1 for its 441-position
 hemispherical sampling.
 """
 

@@ -17,6 +17,9 @@ instrument simulators (``gonio.simulator.lbl`` / ``gonio.simulator.cornell``) wh
 
 References
 ----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
 Ward 1992 (seed ``ward1992``), §2: the imaging gonioreflectometer whose camera and source arm
 the LBL bench models. Stage model after ophyd's ``SynAxis``: physics passed as arguments.
 """

@@ -1,6 +1,6 @@
 """The Cornell automated three-axis gonioreflectometer, simulated.
 
-What the instrument is (000_f6f2403beaa91ee8.txt §5.1 and issue 7): a quartz-halogen source on
+What the instrument is (Li and Torrance 2005, §5.1 and issue 7): a quartz-halogen source on
 an arm revolving about the sample, a sample with two rotations, a fixed grating
 spectroradiometer (≈1024 pixels over ≈385-710 nm) viewing the sample through a folding mirror,
 31 bands at 10 nm from 400 to 700 nm, two polarisations measured and combined, BRDF relative to
@@ -51,6 +51,11 @@ trap, divided by the reference (standard: × ρ_std(λ)/π · cos θi_ref / cos 
 × attenuation / (Ω_s cos θi)), the two polarisations averaged, then the pixels projected onto
 31 hat functions (least squares, exact for spectra linear between band centres). Noise-free,
 this returns the cone-averaged model to rounding error.
+
+References
+----------
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
 """
 
 from __future__ import annotations
@@ -293,7 +298,7 @@ def read_sequence(first: str = "s") -> tuple[tuple[str, bool], ...]:
     ``first``, then dark and signal through the other polariser. The shutter moves twice
     and the polariser once; the geometry ends open on the other polariser, where the next
     geometry's preview (``first`` alternating) reads. Shared by the simulator and the
-    runner through the drivers (``gonio.hardware``), so their keyed noise matches.
+    runner through the drivers (``gonio.campaign.drivers``), so their keyed noise matches.
     """
     if first not in _POL:
         raise ValueError(f"first = {first!r}: expected 's' or 'p'")
@@ -313,7 +318,7 @@ def auto_exposure(
 
     ``read(t, polarizer=, target=, filter_in=)`` returns a raw spectrum: the simulator's own
     :meth:`CornellInstrument.read` or a spectrometer reached through the drivers
-    (``gonio.hardware``), which thereby perform the same reads.
+    (``gonio.campaign.drivers``), which thereby perform the same reads.
     """
     c = config
     room = c.exposure_target * (c.saturation_counts - c.bias_counts)

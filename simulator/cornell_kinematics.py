@@ -1,6 +1,6 @@
 """Kinematics of the Cornell three-axis gonioreflectometer.
 
-Li & Torrance (000_f6f2403beaa91ee8.txt §5.1) describe an automated three-axis instrument whose
+Li & Torrance (Li and Torrance 2005, §5.1) describe an automated three-axis instrument whose
 range covers both hemispheres to 85° except a 7° cone around retro-reflection; what is publicly
 known beyond it (issue 7): the light source revolves about the sample on a motorised arm, the
 sample has two rotational degrees of freedom, the detector is fixed and views the sample through
@@ -26,7 +26,10 @@ zero-pose normal to the required lab normal), so any ``axis2``/``axis3`` pair wo
 
 References
 ----------
-000_f6f2403beaa91ee8.txt §5.1 (85° range, 7° retro-reflection cone); R. M. Murray, Z. Li,
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+
+Li and Torrance 2005, §5.1 (85° range, 7° retro-reflection cone); R. M. Murray, Z. Li,
 S. S. Sastry, "A Mathematical Introduction to Robotic Manipulation" (1994), §3.2 (Paden-Kahan
 subproblems 1 and 2).
 """

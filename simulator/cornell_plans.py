@@ -2,7 +2,7 @@
 
 * Incidence-plane plans (θi = 15°, 30°, 45°, 60°, 75°; 40-70 points per scan, denser near the
   specular direction) and hemispherical plans (θi = 10°…80° step 10°, 441 positions per θi,
-  uniform in solid angle through the Shirley-Chiu map), as in 000_f6f2403beaa91ee8.txt §5.1.
+  uniform in solid angle through the Shirley-Chiu map), as in Li and Torrance 2005, §5.1.
 * User plans from a CSV file with degree columns ``theta_i, phi_i, theta_o, phi_o``.
 * Ordering: greedy nearest neighbour in move time (axes move together, so a move lasts as long
   as its slowest axis) followed by 2-opt passes within each θi block.
@@ -14,6 +14,11 @@ The hemispherical grid is ``gonio.geometry.uniform_hemisphere_grid(21)``: 441 Sh
 centres of equal solid angle 2π/441; its outermost cells sit at θ = 84.6° (``cos θ = 1 −
 (20/21)²``), inside the instrument's 85°. ``cap_deg`` optionally maps the same cells uniformly
 onto a smaller cap (``cos θ = 1 − r²(1 − cos cap)``, still equal-area).
+
+References
+----------
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ class Timing:
 
     Speeds in rad/s (arm, turntable, tilt), acceleration in rad/s², times in s.
 
-    The paper (000_f6f2403beaa91ee8.txt §5.1) gives only the total: "about 11 hours for full
+    The paper (Li and Torrance 2005, §5.1) gives only the total: "about 11 hours for full
     hemispherical sampling" (8 × 441 positions, i.e. ≈ 11 s per position). With these values
     a position costs ≈ 1.1 s of motion (ordered plan), 2.8 s of fixed overhead (settling,
     preview, one polariser turn, four read-outs) and four integrations (a signal and a

@@ -35,7 +35,10 @@ Then eq. 2 holds: ``(V - V_bg)/(V_std - V_bg) · ρ_std/π = f_r`` at every lit 
 
 References
 ----------
-003_0632ad07325ce89d.txt §3 (device, Figure 2-4), eq. 2 (calibration against a diffuse
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3 (device, Figure 2-4), eq. 2 (calibration against a diffuse
 standard and a background image), eq. 3 (angle recovery), "reduced ... to a resolution of
 108 by 80 pixels", "two or more f-stops may be used to capture the full dynamic range".
 """

@@ -28,7 +28,10 @@ inverse solves ``g(θ) = r`` by safeguarded Newton iteration.
 
 References
 ----------
-003_0632ad07325ce89d.txt §3: "The first step is to determine the mapping from image point
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3: "The first step is to determine the mapping from image point
 locations to the lens incident direction. This is a function of the particular fisheye lens
 used" — the paper leaves the lens model open; these are the standard fisheye projections and
 the Kannala-Brandt model (J. Kannala, S. Brandt, IEEE PAMI 28(8), 2006) that OpenCV implements.

@@ -20,7 +20,7 @@ Exact tracing (:meth:`Mirror.trace`): the camera ray from ``C`` meets the quadri
 reflects about the surface normal, and meets the sample plane at ``Q``; the sample point seen
 is ``Q`` and the reflected direction (away from the sample, Ward's d̂_r) is ``wo = (P - Q)/|P - Q|``.
 
-Eq. 3 as printed (003_0632ad07325ce89d.txt)::
+Eq. 3 as printed (Ward 1992)::
 
     r_c = D sin φc sin θc + sqrt(D² sin² φc sin² θc + R² - D²)
     θ_r = acos[ r_c cos θc / sqrt(r_c² cos² φc sin² θc + (r_c sin φc sin θc - 2D)² + r_c² cos² θc) ]
@@ -39,7 +39,10 @@ with the printed sphere ``r_c`` and ``R = a`` it is not exact (its error is repo
 
 References
 ----------
-003_0632ad07325ce89d.txt §3, Figure 3 and eq. 3 (and the note on atan2 beneath it).
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3, Figure 3 and eq. 3 (and the note on atan2 beneath it).
 """
 
 from __future__ import annotations
@@ -123,7 +126,7 @@ def eq3_reflection_angles(
 
     References
     ----------
-    003_0632ad07325ce89d.txt eq. 3.
+    Ward 1992, eq. 3.
 
     Examples
     --------
@@ -174,7 +177,7 @@ class Mirror:
 
     References
     ----------
-    003_0632ad07325ce89d.txt §3 and Figure 3 ("half-silvered hemisphere or hemi-ellipsoid").
+    Ward 1992, §3 and Figure 3 ("half-silvered hemisphere or hemi-ellipsoid").
     """
 
     kind: str = "ellipsoid"
@@ -361,7 +364,7 @@ def eq3_error(
 
     References
     ----------
-    003_0632ad07325ce89d.txt eq. 3 ("a good approximation ... as long as D is small in
+    Ward 1992, eq. 3 ("a good approximation ... as long as D is small in
     relation to R").
     """
     from gonio.simulator.lenses import make_lens

@@ -65,7 +65,10 @@ for every word).
 
 References
 ----------
-003_0632ad07325ce89d.txt §3 (CCD camera with fisheye lens, video capture board; two or
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3 (CCD camera with fisheye lens, video capture board; two or
 more f-stops to cover the dynamic range).
 """
 

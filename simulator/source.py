@@ -5,7 +5,10 @@ Units: photon radiometry. Irradiance in photons s⁻¹ m⁻², radiance in photo
 
 References
 ----------
-003_0632ad07325ce89d.txt §3: "a 3-watt quartz-halogen lamp is used with an optically precise
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+
+Ward 1992, §3: "a 3-watt quartz-halogen lamp is used with an optically precise
 parabolic reflector to produce a well collimated beam"; "the finite collimation of our light
 source" (limits polished surfaces); the background measurement "reduce[s] the effects of stray
 and ambient light" (eq. 2).

@@ -14,7 +14,10 @@ reduction cancels them, so they only shape the raw spectra and the noise.
 
 References
 ----------
-000_f6f2403beaa91ee8.txt §5.1 (31 bands 400-700 nm, RGB conversion); issue 7 (quartz-halogen
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+
+Li and Torrance 2005, §5.1 (31 bands 400-700 nm, RGB conversion); issue 7 (quartz-halogen
 source, ~1024-pixel spectroradiometer over 385-710 nm, two polarisations, Spectralon standard).
 """
 

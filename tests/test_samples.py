@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from gonio.geometry import to_vector
-from gonio.samples import BRDFSamples, read_samples
+from gonio.io.samples_table import read_samples
+from gonio.samples import BRDFSamples
 
 
 def _table(spectral=False):
@@ -65,7 +66,7 @@ def test_csv_rows_matches_savetxt(n, constant):
     """csv_rows pastes constant columns once; the text must equal numpy.savetxt's %.17g."""
     import io
 
-    from gonio.samples import csv_rows
+    from gonio.io.samples_table import csv_rows
 
     rng = np.random.default_rng(n)
     cols = {c: rng.random(n) for c in ("theta_i", "phi_i", "theta_o", "phi_o")}
@@ -83,7 +84,7 @@ def test_csv_rows_matches_savetxt(n, constant):
 
 
 def test_atomic_write_not_durable_and_fsync_files(tmp_path):
-    from gonio.samples import atomic_write_bytes, fsync_files
+    from gonio.io.atomic import atomic_write_bytes, fsync_files
 
     paths = [atomic_write_bytes(tmp_path / "d" / f"f{k}.bin", bytes([k]) * 10, durable=False)
              for k in range(3)]  # fmt: skip

@@ -4,7 +4,7 @@
 >>> "ward" in brdf.names()
 True
 
-Registered names and their equations are listed in ``../shared/DESIGN.md``; ``brdf.spec(name)``
+Registered names and their equations are listed in ``docs/architecture.md``; ``brdf.spec(name)``
 gives each model's parameters with bounds, units and defaults.
 """
 

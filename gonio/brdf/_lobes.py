@@ -8,13 +8,21 @@
 * :func:`half_vector_albedo` — ∫ f(wi, wo) cos θ_o dω_o for half-vector lobes (Blinn, Ward,
   Cook-Torrance) integrated over the half vector with the horizon and the
   ``cos θ_o = cos θ_i`` kink as exact azimuth limits;
-* :func:`sample_cosine_lobe` / :func:`cosine_lobe_pdf` — 001_84a7b2661ce0a5d4.txt eq. 19-22;
+* :func:`sample_cosine_lobe` / :func:`cosine_lobe_pdf` — Neumann et al. 1999, eq. 19-22;
 * :func:`fresnel` — unpolarised Fresnel reflectance for a complex refractive index.
 
 References
 ----------
-001_84a7b2661ce0a5d4.txt (Neumann et al. 1999) eq. 11, 19-22, 26;
-002_f0198a78c5ab063e.txt (Lafortune et al. 1997) eq. 5 (a generalized lobe is a scaled cosine
+.. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
+   metals and other specular materials" (technical report; revised as "Compact metallic
+   reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
+   1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
+.. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
+   approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
+   https://doi.org/10.1145/258734.258801
+
+Neumann et al. 1999 eq. 11, 19-22, 26;
+Lafortune et al. 1997 eq. 5 (a generalized lobe is a scaled cosine
 lobe around ``u' = Mu/|Mu|``).
 """
 
@@ -91,7 +99,7 @@ def cosine_lobe_albedo(
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 11; 002_f0198a78c5ab063e.txt eq. 5.
+    Neumann et al. 1999, eq. 11; Lafortune et al. 1997, eq. 5.
     """
     if p not in (0, 1):
         raise ValueError(f"p must be 0 or 1 for the closed-form lobe albedo, got {p!r}")
@@ -208,7 +216,7 @@ def half_vector_albedo(
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt §7 (albedos of the (N·H) models, tables 1-3, §7.2-7.4).
+    Neumann et al. 1999, §7 (albedos of the (N·H) models, tables 1-3, §7.2-7.4).
     """
     wi = np.asarray(wi, dtype=np.float64)
     ci = float(wi[2])

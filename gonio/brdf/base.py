@@ -3,7 +3,7 @@
 Every model is a subclass of :class:`BRDF` declaring ``name``, ``PARAMS`` (a tuple of
 :class:`Param`) and ``_eval(wi, wo)``; the :func:`register` decorator puts it in the registry
 that :func:`gonio.brdf.create`, :func:`gonio.brdf.names` and :func:`gonio.brdf.spec` read
-(colour-science's ``*_METHODS`` mapping habit, ``../shared/DESIGN.md``).
+(colour-science's ``*_METHODS`` mapping habit, ``docs/architecture.md``).
 
 Conventions: ``wi`` points towards the light, ``wo`` towards the viewer, both away from the
 surface in the local frame (z = normal). Values are in sr⁻¹, shape ``(...)`` for a grey model

@@ -2,11 +2,19 @@
 
 References
 ----------
-002_f0198a78c5ab063e.txt (E. Lafortune, S.-C. Foo, K. Torrance, D. Greenberg, "Non-Linear
+.. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
+   metals and other specular materials" (technical report; revised as "Compact metallic
+   reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
+   1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
+.. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
+   approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
+   https://doi.org/10.1145/258734.258801
+
+Lafortune et al. ("Non-Linear
 Approximation of Reflectance Functions", SIGGRAPH 1997): eq. 3-5 (the generalized lobe as a
 scaled cosine lobe), eq. 6 (non-Lambertian diffuse lobe, ``c_x = c_y = 0``), eq. 7 (mirror
-term), eq. 8 (sum of lobes), table 1 (blue paint). 001_84a7b2661ce0a5d4.txt (Neumann et al.
-1999) eq. 14-16 (the p-exponent per lobe).
+term), eq. 8 (sum of lobes), table 1 (blue paint). Neumann et al. 1999 eq. 14-16 (the
+p-exponent per lobe).
 """
 
 from __future__ import annotations
@@ -88,7 +96,7 @@ class Lafortune(BRDF):
 
     References
     ----------
-    002_f0198a78c5ab063e.txt eq. 4-8, table 1; 001_84a7b2661ce0a5d4.txt eq. 16.
+    Lafortune et al. 1997, eq. 4-8, table 1; Neumann et al. 1999, eq. 16.
     """
 
     name: ClassVar[str] = "lafortune"
@@ -102,7 +110,7 @@ class Lafortune(BRDF):
         Param("rho_d", 0.0, 0.0, 1.0, "1", "Lambertian reflectance"),
         Param("r_m", 0.0, 0.0, 1.0, "1", "mirror fraction R_m of the lost lobe power (eq. 7)"),
     )
-    REFERENCE = "002_f0198a78c5ab063e.txt eq. 8 (+ eq. 7 mirror; Neumann eq. 16 p)"
+    REFERENCE = "Lafortune et al. 1997, eq. 8 (+ eq. 7 mirror; Neumann eq. 16 p)"
     SUMMARY = "sum of Lafortune generalized cosine lobes (+ Lambert, + mirror)"
     ENERGY_CONSERVING = False
 

@@ -1,7 +1,14 @@
 """The Lambertian (ideal diffuse) reflector.
 
-f_r = ρ/π, the diffuse term of every model in the seeds (e.g. 003_0632ad07325ce89d.txt
-eq. 4, first term; 004_feeb073ce4e934f6.txt, the σ = 0 limit of eq. 25-30).
+f_r = ρ/π, the diffuse term of every model in the seeds (e.g. Ward 1992
+eq. 4, first term; Oren and Nayar 1994, the σ = 0 limit of eq. 25-30).
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+.. [OrenNayar1994] M. Oren and S. K. Nayar, "Generalization of Lambert's reflectance model",
+   Proc. SIGGRAPH '94, 239-246, 1994. https://doi.org/10.1145/192161.192213
 """
 
 from __future__ import annotations
@@ -26,12 +33,12 @@ class Lambert(BRDF):
 
     References
     ----------
-    003_0632ad07325ce89d.txt (Ward 1992), eq. 4, term ρ_d/π.
+    Ward 1992, eq. 4, term ρ_d/π.
     """
 
     name: ClassVar[str] = "lambert"
     PARAMS = (Param("rho", 0.5, 0.0, 1.0, "1", "diffuse reflectance"),)
-    REFERENCE = "003_0632ad07325ce89d.txt eq. 4 (diffuse term)"
+    REFERENCE = "Ward 1992, eq. 4 (diffuse term)"
     SUMMARY = "ideal diffuse reflector rho/pi"
 
     def _setup(self) -> None:

@@ -41,7 +41,10 @@ tests check that both agree to 1e-10.
 
 References
 ----------
-000_f6f2403beaa91ee8.txt (H. Li and K. E. Torrance, "A Practical, Comprehensive Light
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+
+Li and Torrance ("A Practical, Comprehensive Light
 Reflection Model", 2005): eq. 2-14 (model), eq. 16-18 (constructed models of §5.2), eq. 20-26
 (anisotropic appendix), tables 1-3 (best fits; presets in
 ``gonio/materials/data/li_torrance.json``).
@@ -86,7 +89,7 @@ def shadowing(cos_theta: ArrayLike, k: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    000_f6f2403beaa91ee8.txt eq. 6, 23.
+    Li and Torrance 2005, eq. 6, 23.
     """
     c = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
     return 1.0 - (1.0 - c) ** np.asarray(k, dtype=np.float64)
@@ -100,7 +103,7 @@ def shadowing_shortcut_mask(cos_i: ArrayLike, cos_r: ArrayLike, k_i: ArrayLike, 
 
     References
     ----------
-    000_f6f2403beaa91ee8.txt eq. 7.
+    Li and Torrance 2005, eq. 7.
     """
     ti = 1.0 - 0.005 ** (1.0 / np.asarray(k_i, dtype=np.float64))
     tr = 1.0 - 0.005 ** (1.0 / np.asarray(k_r, dtype=np.float64))
@@ -116,7 +119,7 @@ def effective_roughness(
 
     References
     ----------
-    000_f6f2403beaa91ee8.txt eq. 8, 24.
+    Li and Torrance 2005, eq. 8, 24.
     """
     ci = np.clip(np.asarray(cos_i, dtype=np.float64), 0.0, 1.0)
     cr = np.clip(np.asarray(cos_r, dtype=np.float64), 0.0, 1.0)
@@ -139,7 +142,7 @@ def smith_shadowing(theta: ArrayLike, sigma: float, tau: float) -> NDArray[np.fl
 
     References
     ----------
-    000_f6f2403beaa91ee8.txt eq. 6 and Figure 8 (σ = 0.5 μm, τ = 2.5 μm); B. G. Smith,
+    Li and Torrance 2005, eq. 6 and Figure 8 (σ = 0.5 μm, τ = 2.5 μm); B. G. Smith,
     IEEE Trans. Antennas Propag. 15 (1967) 668-671.
     """
     from scipy.special import erfc
@@ -320,7 +323,7 @@ class LiTorrance(BRDF):
 
     References
     ----------
-    000_f6f2403beaa91ee8.txt eq. 3-14 and 20-26; see the module docstring for the corrections
+    Li and Torrance 2005, eq. 3-14 and 20-26; see the module docstring for the corrections
     to eq. 3, 7, 10 and 13-14.
     """
 
@@ -345,7 +348,7 @@ class LiTorrance(BRDF):
         Param("effective_roughness", True, kind="object", doc="use sigma_e (eq. 8/24)"),
         Param("shortcut", True, kind="object", doc="eq. 7's S = 1 short-cut"),
     )  # fmt: skip
-    REFERENCE = "000_f6f2403beaa91ee8.txt eq. 3-14, anisotropic eq. 20-26"
+    REFERENCE = "Li and Torrance 2005, eq. 3-14, anisotropic eq. 20-26"
     SUMMARY = "Li-Torrance five-component model (He-Torrance based, with subsurface terms)"
     RECIPROCAL = False
     ENERGY_CONSERVING = False
@@ -604,7 +607,7 @@ class LiTorrance(BRDF):
 
         References
         ----------
-        000_f6f2403beaa91ee8.txt eq. 2-4, 16.
+        Li and Torrance 2005, eq. 2-4, 16.
         """
         wi = as_directions(wi, "wi")
         d = wi * np.array([-1.0, -1.0, 1.0])

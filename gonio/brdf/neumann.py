@@ -8,11 +8,20 @@ All models here are reciprocal. Values are 0 when either direction is at or belo
 
 References
 ----------
-001_84a7b2661ce0a5d4.txt (L. Neumann, A. Neumann, L. Szirmay-Kalos, "Compact Metallic
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+.. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
+   metals and other specular materials" (technical report; revised as "Compact metallic
+   reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
+   1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
+
+Neumann et al. ("Compact Metallic
 Reflectance Models", 1999): eq. 5-7 and 9-10 (Phong and the corrected model), eq. 12 (p-model),
 eq. 13 (retro-reflection), eq. 19-25 (importance sampling), eq. 26 (grazing albedo),
 eq. 27-30 (metals and plastics), eq. 32-33 (Blinn), eq. 34-35 (Ward), eq. 36-37
-(Cook-Torrance), tables 1-3. 000_f6f2403beaa91ee8.txt (Li & Torrance 2005) eq. 5 (Schlick's
+(Cook-Torrance), tables 1-3. Li and Torrance 2005 eq. 5 (Schlick's
 Fresnel approximation used by :class:`CookTorrance` when ``f0`` is given).
 """
 
@@ -125,7 +134,7 @@ class _PhongLobe(BRDF):
     RETRO: ClassVar[bool] = False
     KNOWN_ISSUES: ClassVar[tuple[str, ...]] = (
         "albedo exceeds 1 slightly with the maximum c_n: by 0.0003 near 13 deg at n = 1 and "
-        "by 0.01 near 30 deg at n = 0.5, more as n -> 0 (001_84a7b2661ce0a5d4.txt §2.2: "
+        "by 0.01 near 30 deg at n = 0.5, more as n -> 0 (Neumann et al. 1999, §2.2: "
         "eq. 6 is energy conserving only for the reciprocal Phong model, n >= 1)",
     )
 
@@ -263,13 +272,13 @@ class Phong(_PhongLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 5, 6, 9, 19-22.
+    Neumann et al. 1999, eq. 5, 6, 9, 19-22.
     """
 
     name: ClassVar[str] = "phong"
     KNOWN_ISSUES: ClassVar[tuple[str, ...]] = ()  # eq. 6 bound holds for eq. 5 itself
     PARAMS = (_P_N, _P_CN, _P_RHOD)
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 5-6 (reciprocal Phong)"
+    REFERENCE = "Neumann et al. 1999, eq. 5-6 (reciprocal Phong)"
     SUMMARY = "reciprocal Phong lobe c_n cos^n(alpha) (+ Lambert)"
 
 
@@ -299,12 +308,12 @@ class PhongNeumann(_PhongLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 7, 10-12, 25-26.
+    Neumann et al. 1999, eq. 7, 10-12, 25-26.
     """
 
     name: ClassVar[str] = "phong_neumann"
     PARAMS = (_P_N, _P_CN, _P_P, _P_RHOD)
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 12 (eq. 7 at p = 1)"
+    REFERENCE = "Neumann et al. 1999, eq. 12 (eq. 7 at p = 1)"
     SUMMARY = "Neumann p-model c_n cos^n(alpha)/max(cos)^p (corrected metal Phong)"
 
 
@@ -327,12 +336,12 @@ class PhongRetro(_PhongLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 13.
+    Neumann et al. 1999, eq. 13.
     """
 
     name: ClassVar[str] = "phong_retro"
     PARAMS = (_P_N, _P_CN, _P_RHOD)
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 13 (retro-reflective)"
+    REFERENCE = "Neumann et al. 1999, eq. 13 (retro-reflective)"
     SUMMARY = "retro-reflective corrected Phong lobe about L"
     RETRO = True
 
@@ -375,7 +384,7 @@ class MetalNeumann(_PhongLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 27-28.
+    Neumann et al. 1999, eq. 27-28.
     """
 
     name: ClassVar[str] = "metal_neumann"
@@ -388,7 +397,7 @@ class MetalNeumann(_PhongLobe):
         Param("fresnel_angle", "min", doc="'min' (eq. 28) or 'half' (eq. 27)", kind="object"),
         Param("wavelength_nm", None, doc="band centres in nm", kind="object", optional=True),
     )
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 27-28 (metal)"
+    REFERENCE = "Neumann et al. 1999, eq. 27-28 (metal)"
     SUMMARY = "Neumann metal: corrected Phong times Fresnel F(kappa, Theta_min)"
 
     def _lobe_params(self) -> tuple[float, float, float, float]:
@@ -466,7 +475,7 @@ class PlasticNeumann(_PhongLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 29-30; figure 13 (a_s, n) sequence.
+    Neumann et al. 1999, eq. 29-30; figure 13 (a_s, n) sequence.
     """
 
     name: ClassVar[str] = "plastic_neumann"
@@ -477,7 +486,7 @@ class PlasticNeumann(_PhongLobe):
         Param("kappa", None, 1.0, 10.0, "1", "real refractive index (None: F = 1)", optional=True),
         Param("wavelength_nm", None, doc="band centres in nm", kind="object", optional=True),
     )
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 29-30 (plastic)"
+    REFERENCE = "Neumann et al. 1999, eq. 29-30 (plastic)"
     SUMMARY = "Neumann plastic: a_d/pi + a_s x corrected Phong (x Fresnel)"
 
     def _lobe_params(self) -> tuple[float, float, float, float]:
@@ -616,11 +625,11 @@ class BlinnPhong(_Blinn):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 32, table 1.
+    Neumann et al. 1999, eq. 32, table 1.
     """
 
     name: ClassVar[str] = "blinn_phong"
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 32 (Blinn)"
+    REFERENCE = "Neumann et al. 1999, eq. 32 (Blinn)"
     SUMMARY = "Blinn lobe C_n (N.H)^n (+ Lambert)"
 
 
@@ -638,11 +647,11 @@ class BlinnNeumann(_Blinn):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 33, table 1.
+    Neumann et al. 1999, eq. 33, table 1.
     """
 
     name: ClassVar[str] = "blinn_neumann"
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 33 (corrected Blinn)"
+    REFERENCE = "Neumann et al. 1999, eq. 33 (corrected Blinn)"
     SUMMARY = "corrected Blinn C_n (N.H)^n / max(cos)"
     P = 1.0
 
@@ -665,7 +674,7 @@ def blinn_max_c_n(n: float, corrected: bool = False) -> float:
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt §7.1, table 1.
+    Neumann et al. 1999, §7.1, table 1.
     """
     from scipy.optimize import minimize_scalar
 
@@ -716,11 +725,11 @@ class WardNeumann(Ward):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 34-35, table 2; 003_0632ad07325ce89d.txt eq. 5a, 7.
+    Neumann et al. 1999, eq. 34-35, table 2; Ward 1992, eq. 5a, 7.
     """
 
     name: ClassVar[str] = "ward_neumann"
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 35 (corrected Ward, anisotropic)"
+    REFERENCE = "Neumann et al. 1999, eq. 35 (corrected Ward, anisotropic)"
     SUMMARY = "Ward elliptical Gaussian with 1/max(cos) (Neumann-corrected)"
     ENERGY_CONSERVING = True
     KNOWN_ISSUES = ()
@@ -769,7 +778,7 @@ class CookTorrance(_HalfLobe):
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 36-37, §7.3-7.4; 000_f6f2403beaa91ee8.txt eq. 5.
+    Neumann et al. 1999, eq. 36-37, §7.3-7.4; Li and Torrance 2005, eq. 5.
     """
 
     name: ClassVar[str] = "cook_torrance"
@@ -779,11 +788,11 @@ class CookTorrance(_HalfLobe):
         Param("k_s", 1.0, 0.0, 1.0, "1", "specular scale"),
         _P_RHOD,
     )
-    REFERENCE = "001_84a7b2661ce0a5d4.txt eq. 36-37 (Cook-Torrance)"
+    REFERENCE = "Neumann et al. 1999, eq. 36-37 (Cook-Torrance)"
     SUMMARY = "Cook-Torrance with Beckmann D and V-groove G (F = 1 or Schlick)"
     ENERGY_CONSERVING = False
     KNOWN_ISSUES = (
-        "001_84a7b2661ce0a5d4.txt §7.3-7.4 claims the albedo diverges at grazing incidence; "
+        "Neumann et al. 1999, §7.3-7.4 claims the albedo diverges at grazing incidence; "
         "with eq. 37's G it stays bounded (the masking term cancels 1/(N.L)), see the notes",
     )
 
@@ -828,7 +837,7 @@ def mean_albedo(model: BRDF, nodes: int = 48, rtol: float = 1e-7) -> float:
 
     References
     ----------
-    001_84a7b2661ce0a5d4.txt eq. 43, table 3.
+    Neumann et al. 1999, eq. 43, table 3.
     """
     x, w = np.polynomial.legendre.leggauss(nodes)
     edges = np.cos(np.radians([90.0, 85.0, 70.0, 45.0, 0.0])) ** 2

@@ -1,7 +1,7 @@
 """Oren & Nayar's rough diffuse (V-cavity) models and the Torrance-Sparrow surface term.
 
-Four registered models, all from 004_feeb073ce4e934f6.txt (M. Oren and S. K. Nayar,
-"Generalization of Lambert's Reflectance Model", SIGGRAPH 1994):
+Four registered models, all from Oren and Nayar 1994 ("Generalization of Lambert's Reflectance
+Model", SIGGRAPH 1994):
 
 ``oren_nayar``
     The functional approximation, eq. 27 (direct illumination) **plus** eq. 28 (two-bounce
@@ -44,7 +44,10 @@ Notes on the printed equations
 
 References
 ----------
-004_feeb073ce4e934f6.txt eq. 11, 24-31, 33, 39, 45, 49.
+.. [OrenNayar1994] M. Oren and S. K. Nayar, "Generalization of Lambert's reflectance model",
+   Proc. SIGGRAPH '94, 239-246, 1994. https://doi.org/10.1145/192161.192213
+
+Oren and Nayar 1994, eq. 11, 24-31, 33, 39, 45, 49.
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ __all__ = [
 
 _RHO = Param("rho", 0.5, 0.0, 1.0, "1", "albedo of the Lambertian facets")
 _SIGMA = Param("sigma", 0.3, 0.0, 1.5, "rad", "standard deviation of the facet slope angle theta_a")
-_REF = "004_feeb073ce4e934f6.txt"
+_REF = "Oren and Nayar 1994"
 
 
 def _angles(wi: NDArray, wo: NDArray, need_angles: bool = True):
@@ -135,7 +138,7 @@ class OrenNayar(BRDF):
 
     References
     ----------
-    004_feeb073ce4e934f6.txt eq. 27, 28, 29 (BRDF = L_r / (E0 cos θi)).
+    Oren and Nayar 1994, eq. 27, 28, 29 (BRDF = L_r / (E0 cos θi)).
     """
 
     name: ClassVar[str] = "oren_nayar"
@@ -226,7 +229,7 @@ class OrenNayarQualitative(BRDF):
 
     References
     ----------
-    004_feeb073ce4e934f6.txt eq. 30 (and footnote 7: 0.57 instead of 0.33 partly compensates
+    Oren and Nayar 1994, eq. 30 (and footnote 7: 0.57 instead of 0.33 partly compensates
     for the missing interreflection; not used here).
     """
 
@@ -447,7 +450,7 @@ class OrenNayarNumeric(BRDF):
 
     References
     ----------
-    004_feeb073ce4e934f6.txt eq. 23-26 (with the normalisation note in the module
+    Oren and Nayar 1994, eq. 23-26 (with the normalisation note in the module
     docstring), eq. 39, eq. 45 (= eq. 24), eq. 49.
     """
 
@@ -626,7 +629,7 @@ class TorranceSparrow(BRDF):
 
     References
     ----------
-    004_feeb073ce4e934f6.txt eq. 31, 32, 33, 36.
+    Oren and Nayar 1994, eq. 31, 32, 33, 36.
     """
 
     name: ClassVar[str] = "torrance_sparrow"
@@ -686,7 +689,7 @@ def approximation_errors(
 
     References
     ----------
-    004_feeb073ce4e934f6.txt Figures 12-13 (the paper's own comparisons, in the plane of
+    Oren and Nayar 1994, Figures 12-13 (the paper's own comparisons, in the plane of
     incidence only).
     """
     from gonio.geometry import to_vector

@@ -1,26 +1,26 @@
 """Measured BRDFs on the MERL half/difference grid.
 
 ``tabulated(data, wavelengths_nm=None)``: ``data`` is a MERL binary file path or an array on
-the MERL grid (:mod:`gonio.merl`): ``(90, 90, 180)`` for a grey table or
+the MERL grid (:mod:`gonio.io.merl`): ``(90, 90, 180)`` for a grey table or
 ``(n_bands, 90, 90, 180)`` for a spectral one, in sr⁻¹ (already scaled — :func:`read_merl`
 applies MERL's 1/1500, 1.15/1500, 1.66/1500 channel factors).
 
 Grey or spectral. A MERL file (three colour channels) gives a **spectral** model with three
 bands, values of shape ``(..., 3)`` in the file's order red, green, blue, at the nominal band
-centres :data:`gonio.merl.WAVELENGTHS_NM` = [610, 550, 465] nm (a documented choice: MERL's
+centres :data:`gonio.io.merl.WAVELENGTHS_NM` = [610, 550, 465] nm (a documented choice: MERL's
 channels are broad camera bands with no stated wavelengths). A ``(90, 90, 180)`` array gives a
-**grey** model (values of shape ``(...)``), which is what :func:`gonio.merl.tabulate` returns
+**grey** model (values of shape ``(...)``), which is what :func:`gonio.io.merl.tabulate` returns
 for a grey model, so ``tabulated(tabulate(m))`` has the same kind of output as ``m``. A user
 array with a number of bands other than 3 needs ``wavelengths_nm``.
 
-Evaluation is MERL's nearest-cell lookup (:func:`gonio.merl.merl_index`). Directions at or
+Evaluation is MERL's nearest-cell lookup (:func:`gonio.io.merl.merl_index`). Directions at or
 below the horizon give 0; negative table entries (MERL's marker for unmeasured bins) read
 as 0. The lookup is isotropic (no φh) and reciprocal (φd is folded by π).
 
 References
 ----------
 W. Matusik et al., "A Data-Driven Reflectance Model", SIGGRAPH 2003, and its ``BRDFRead.cpp``
-(format and lookup). ``../shared/DESIGN.md`` "File formats": measured BRDF as MERL binary.
+(format and lookup). ``docs/architecture.md`` "File formats": measured BRDF as MERL binary.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class Tabulated(BRDF):
     Examples
     --------
     >>> from gonio import brdf
-    >>> from gonio.merl import tabulate
+    >>> from gonio.io.merl import tabulate
     >>> m = brdf.create("tabulated", data=tabulate("lambert", rho=0.5))
     >>> round(float(m([0.3, 0, 0.95], [0, 0.2, 0.97])), 6)
     0.159155
@@ -83,7 +83,7 @@ class Tabulated(BRDF):
     ALBEDO_RTOL = 1e-3
 
     def _setup(self) -> None:
-        from gonio.merl import N_CELLS, WAVELENGTHS_NM, _as_table, read_merl
+        from gonio.io.merl import N_CELLS, WAVELENGTHS_NM, _as_table, read_merl
 
         data = self._params["data"]
         if isinstance(data, str | os.PathLike):
@@ -129,14 +129,14 @@ class Tabulated(BRDF):
     @property
     def table(self) -> NDArray[np.float64]:
         """The table on the MERL grid (sr⁻¹), as passed: ``(90, 90, 180)`` or ``(nb, …)``."""
-        from gonio.merl import SHAPE
+        from gonio.io.merl import SHAPE
 
         if self._wl is None:
             return self._table.reshape(SHAPE).copy()
         return self._table.T.reshape((-1, *SHAPE)).copy()
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
-        from gonio.merl import merl_index
+        from gonio.io.merl import merl_index
 
         valid, idx = merl_index(wi, wo)
         v = self._table[idx]

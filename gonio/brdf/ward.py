@@ -10,7 +10,14 @@ most a few ulp; tests require agreement to 1e-13 relative). Set the environment 
 
 References
 ----------
-003_0632ad07325ce89d.txt (G. J. Ward, "Measuring and Modeling Anisotropic Reflection",
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+.. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
+   metals and other specular materials" (technical report; revised as "Compact metallic
+   reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
+   1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
+
+Ward ("Measuring and Modeling Anisotropic Reflection",
 SIGGRAPH 1992): eq. 4 (isotropic), eq. 5a (anisotropic), eq. 5b (its "computationally
 convenient approximation"), eq. 7 (sampling).
 """
@@ -40,7 +47,7 @@ _WARD_PARAMS = (
     Param("alpha_y", 0.1, 1e-4, 1.0, "1", "RMS surface slope along y"),
 )
 
-_WARD_ISSUES = ("albedo diverges at grazing incidence (001_84a7b2661ce0a5d4.txt §7.4, eq. 38-41)",)
+_WARD_ISSUES = ("albedo diverges at grazing incidence (Neumann et al. 1999, §7.4, eq. 38-41)",)
 
 
 # --------------------------------------------------------------------------- numba kernels
@@ -147,7 +154,7 @@ def sample_half_vector(
 
     References
     ----------
-    003_0632ad07325ce89d.txt eq. 7a, 7b.
+    Ward 1992, eq. 7a, 7b.
     """
     u1 = np.asarray(u1, dtype=np.float64)
     t = 2.0 * np.pi * np.asarray(u2, dtype=np.float64)
@@ -206,12 +213,12 @@ class Ward(BRDF):
 
     References
     ----------
-    003_0632ad07325ce89d.txt eq. 4, 5a; sampling eq. 7a-7b.
+    Ward 1992, eq. 4, 5a; sampling eq. 7a-7b.
     """
 
     name: ClassVar[str] = "ward"
     PARAMS = _WARD_PARAMS
-    REFERENCE = "003_0632ad07325ce89d.txt eq. 5a (eq. 4 isotropic)"
+    REFERENCE = "Ward 1992, eq. 5a (eq. 4 isotropic)"
     SUMMARY = "Ward anisotropic elliptical Gaussian"
     ENERGY_CONSERVING = False
     KNOWN_ISSUES = _WARD_ISSUES
@@ -342,11 +349,11 @@ class WardApprox(Ward):
 
     References
     ----------
-    003_0632ad07325ce89d.txt eq. 5b.
+    Ward 1992, eq. 5b.
     """
 
     name: ClassVar[str] = "ward_approx"
-    REFERENCE = "003_0632ad07325ce89d.txt eq. 5b"
+    REFERENCE = "Ward 1992, eq. 5b"
     SUMMARY = "Ward eq. 5b approximation of the elliptical Gaussian"
     _KERNEL = "ward_approx"
 

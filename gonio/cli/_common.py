@@ -28,7 +28,7 @@ def to_json(obj: Any) -> str:
 
 def write_json(path: str | os.PathLike, obj: Any) -> Path:
     """Write ``obj`` as JSON to ``path`` atomically (temporary file + rename)."""
-    from gonio.samples import atomic_write_bytes
+    from gonio.io.atomic import atomic_write_bytes
 
     return atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 

@@ -31,7 +31,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from gonio import bench
+    from gonio.diagnostics import bench
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
@@ -93,7 +93,7 @@ def run(args) -> int:
                 arows.append((a["name"], "-", "-", "-", f"not yet available: {a['waiting_on']}"))
         print(format_table(("rule", "off_s", "on_s", "speed-up", "result unchanged"), arows))
     if args.csv:
-        from gonio.samples import atomic_write_bytes
+        from gonio.io.atomic import atomic_write_bytes
 
         atomic_write_bytes(args.csv, bench.rows_csv(report["rows"]))
     if args.plot:

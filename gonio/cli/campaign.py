@@ -128,7 +128,7 @@ def parse_noise(text: str) -> float:
 
 
 def _run_cornell(args) -> int:
-    from gonio.cornell_campaign import run_cornell_campaign, summary_text
+    from gonio.campaign.cornell import run_cornell_campaign, summary_text
 
     s = run_cornell_campaign(
         args.material or "garnet_red_paint",

@@ -1,12 +1,12 @@
 """``gonio devices serve``: run the fake devices on a simulated bench until interrupted.
 
-Every ESP300 controller of the bench is served (``gonio.hardware.CONTROLLER_GROUPS``): for
+Every ESP300 controller of the bench is served (``gonio.campaign.drivers.CONTROLLER_GROUPS``): for
 ``--instrument cornell`` the motors (arm, turntable, tilt), the accessories (polariser,
 target slide, ND filter wheel) and the shutter, on three controllers, beside the USB2000+
 (1024 pixels, the simulator's EEPROM wavelength calibration) and the PTP camera on one fake
 USB bus; for ``lbl`` the source arm, sample rotation and tilt, and the sample changer.
-The Cornell bench is ``gonio.hardware.cornell_fake_bench(material, seed, noise)``, so an
-external driver script (``gonio.hardware.open_served_rig`` on the printed records, then
+The Cornell bench is ``gonio.campaign.drivers.cornell_fake_bench(material, seed, noise)``, so an
+external driver script (``gonio.campaign.drivers.open_served_rig`` on the printed records, then
 ``run_cornell_measurements``) measures the same samples as the in-process simulation with
 the same seed.
 """
@@ -62,9 +62,9 @@ def _serve(args) -> int:
     import signal
     import threading
 
+    from gonio.campaign.drivers import CONTROLLER_GROUPS, cornell_fake_bench
     from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.fake.usb import devices, install, serve_remote
-    from gonio.hardware import CONTROLLER_GROUPS, cornell_fake_bench
     from gonio.simulator.bench import Bench
 
     if args.time_scale <= 0:

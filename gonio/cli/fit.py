@@ -59,7 +59,7 @@ def _pairs(items: list[str], option: str, need_value: bool) -> dict:
 
 def run(args) -> int:
     from gonio import fit
-    from gonio.samples import read_samples
+    from gonio.io.samples_table import read_samples
 
     samples = read_samples(args.samples)
     fixed = _pairs(args.fixed, "--fixed", need_value=False)

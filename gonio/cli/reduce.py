@@ -1,4 +1,10 @@
-"""``gonio reduce``: raw LBL images + side-cars → a BRDF samples table (Ward 1992 §3.2)."""
+"""``gonio reduce``: raw LBL images + side-cars → a BRDF samples table (Ward 1992 §3.2).
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+"""
 
 from __future__ import annotations
 

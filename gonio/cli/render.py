@@ -2,7 +2,12 @@
 
 Writes the 16-bit image (PNG or TIFF by suffix) and its JSON side-car (``<image>.json``,
 the capture metadata), optionally a false-colour picture with the reflection-angle grid that
-eq. 3 recovers drawn over it (003_0632ad07325ce89d.txt §3, Figure 4 and eq. 3).
+eq. 3 recovers drawn over it (Ward 1992, §3, Figure 4 and eq. 3).
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
 """
 
 from __future__ import annotations
@@ -97,7 +102,7 @@ def _angle_plot(img, meta, path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from gonio.samples import atomic_write_bytes
+    from gonio.io.atomic import atomic_write_bytes
     from gonio.simulator import FisheyeLens, eq3_reflection_angles
 
     lens = FisheyeLens.from_dict(meta["lens"])
@@ -138,7 +143,7 @@ def run(args) -> int:
 
     import numpy as np
 
-    from gonio.imageio import IMAGE_SUFFIXES, sidecar_path, write_image
+    from gonio.io.images import IMAGE_SUFFIXES, sidecar_path, write_image
     from gonio.simulator import LBLInstrument
 
     out = Path(args.out)

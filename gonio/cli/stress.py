@@ -28,7 +28,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from gonio import stress
+    from gonio.diagnostics import stress
 
     r = stress.run(args.size, models=args.models, rng=args.seed, stages=args.stages)
     known = {(k["model"], k["kind"]) for k in r["known"]}

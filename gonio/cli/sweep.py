@@ -60,7 +60,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from gonio import sweep
+    from gonio.campaign import sweep
 
     spec = sweep.load_spec(args.spec)
     if args.processes is not None and args.processes < 1:

@@ -69,6 +69,6 @@ def test_sum_and_callable():
 def test_materials_presets():
     assert len(materials.names("ward")) >= 10 + 18
     rec = materials.info("rolled_brass")
-    assert rec["source"].startswith("003_0632ad07325ce89d.txt")
+    assert rec["source"].startswith("Ward 1992")
     with pytest.raises(ValueError, match="unknown material"):
         materials.get("unobtainium")

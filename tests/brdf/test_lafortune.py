@@ -1,4 +1,4 @@
-"""Lafortune et al. 1997 (002_f0198a78c5ab063e.txt): generalized cosine lobes."""
+"""Lafortune et al. 1997 (Lafortune et al. 1997): generalized cosine lobes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Tests of the Li-Torrance model (000_f6f2403beaa91ee8.txt eq. 3-14, 20-26) and its presets."""
+"""Tests of the Li-Torrance model (Li and Torrance 2005, eq. 3-14, 20-26) and its presets."""
 
 from __future__ import annotations
 
@@ -268,7 +268,7 @@ def test_albedo_includes_mirror_part():
 def test_presets_follow_tables_1_to_3():
     for name in PRESETS:
         rec = materials.info(name)
-        assert rec["source"].startswith("000_f6f2403beaa91ee8.txt")
+        assert rec["source"].startswith("Li and Torrance 2005")
         assert materials.info(name + "_he_torrance")["model"] == "li_torrance"
     band = {450: 5, 550: 15, 650: 25}
     gg = materials.get("aluminized_ground_glass").params

@@ -1,4 +1,4 @@
-"""Neumann et al. 1999 (001_84a7b2661ce0a5d4.txt): models against the paper's printed numbers.
+"""Neumann et al. 1999 (Neumann et al. 1999): models against the paper's printed numbers.
 
 Every table value is recomputed here by an integration independent of the library path
 (scipy.integrate.quad of the normal-incidence albedo, brute-force product quadrature over
@@ -343,7 +343,7 @@ def test_plastic_energy_rule_and_spectral_albedo() -> None:
 def test_neumann_presets(name: str) -> None:
     rec = materials.info(name)
     m = materials.get(name)
-    assert rec["source"].startswith("001_84a7b2661ce0a5d4.txt")
+    assert rec["source"].startswith("Neumann et al. 1999")
     assert 0.0 < float(m.albedo(_wi(0.0))) <= 1.0 + 1e-12
 
 

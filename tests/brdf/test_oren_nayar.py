@@ -1,4 +1,4 @@
-"""Oren-Nayar (004_feeb073ce4e934f6.txt eq. 25-31) and Torrance-Sparrow tests."""
+"""Oren-Nayar (Oren and Nayar 1994, eq. 25-31) and Torrance-Sparrow tests."""
 
 import math
 

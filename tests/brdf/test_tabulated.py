@@ -5,7 +5,7 @@ import pytest
 
 from gonio import brdf
 from gonio.geometry import difference_half_angles, from_difference_half_angles
-from gonio.merl import WAVELENGTHS_NM, tabulate, write_merl
+from gonio.io.merl import WAVELENGTHS_NM, tabulate, write_merl
 
 WARD = {"rho_d": 0.1, "rho_s": 0.2, "alpha_x": 0.15, "alpha_y": 0.15}
 

@@ -1,4 +1,4 @@
-"""Ward 1992 (003_0632ad07325ce89d.txt): eq. 5a values, the numba kernel, eq. 7 sampling."""
+"""Ward 1992 (Ward 1992): eq. 5a values, the numba kernel, eq. 7 sampling."""
 
 from __future__ import annotations
 

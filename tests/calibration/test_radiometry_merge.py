@@ -1,4 +1,4 @@
-"""Eq. 2 radiometry, error propagation and exposure merging (003_0632ad07325ce89d.txt eq. 2)."""
+"""Eq. 2 radiometry, error propagation and exposure merging (Ward 1992, eq. 2)."""
 
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ def test_eq2_value_and_sigma_match_monte_carlo():
 def test_eq2_debias_removes_the_ratio_bias():
     """A dim standard (σ_d/d ≈ 8 %): n/d is high by about (σ_d/d)² (E[1/d] > 1/E[d]), 16
     standard errors of the mean over 40 000 pixels; ``debias`` removes it (eq. 2,
-    003_0632ad07325ce89d.txt)."""
+    Ward 1992)."""
     rng = np.random.default_rng(2)
     n = 40000
     m = _frames(3000.0, META, rng, n).reshape(200, 200)

@@ -9,13 +9,13 @@ import pytest
 
 from gonio import materials
 from gonio.cli import main
-from gonio.samples import read_samples
+from gonio.io.samples_table import read_samples
 
 sim = pytest.importorskip("gonio.simulator")
 
 
 def test_reduce_cli_round_trip(tmp_path):
-    from gonio.imageio import write_image
+    from gonio.io.images import write_image
 
     inst = sim.LBLInstrument(mirror="ellipsoid", width=160, height=120, lens="equidistant")
     ti = np.radians(30)
@@ -42,7 +42,7 @@ def test_reduce_cli_missing_file(tmp_path, capsys):
 
 
 def test_reduce_all_saturated_is_an_error(tmp_path):
-    from gonio.imageio import write_image
+    from gonio.io.images import write_image
 
     inst = sim.LBLInstrument(mirror="ellipsoid", width=80, height=60, lens="equidistant")
     paths = []

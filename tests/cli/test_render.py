@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gonio.cli import main
-from gonio.imageio import read_image
+from gonio.io.images import read_image
 
 
 def test_render_png_with_sidecar_json_and_plot(tmp_path, capsys):

@@ -16,7 +16,7 @@ from gonio.drivers.ptp import PTPCamera
 from gonio.drivers.usb2000 import USB2000Plus
 from gonio.simulator.bench import Bench
 
-from gonio.samples import atomic_write_bytes
+from gonio.io.atomic import atomic_write_bytes
 
 
 def run_campaign(

@@ -94,8 +94,8 @@ def test_external_script_runs_a_cornell_campaign_on_the_served_bench(tmp_path):
     """A driver script in another process than the fakes measures, through the drivers
     only, the samples the in-process simulation gives for the same seed."""
     pytest.importorskip("gonio.simulator.cornell")
-    from gonio.cornell_campaign import build_plan, run_cornell_campaign
-    from gonio.hardware import CornellRig, open_served_rig, run_cornell_measurements
+    from gonio.campaign.cornell import build_plan, run_cornell_campaign
+    from gonio.campaign.drivers import CornellRig, open_served_rig, run_cornell_measurements
 
     kw = dict(plan="incidence", plan_kw={"theta_i_deg": (45.0,)}, max_geometries=6)
     ref = run_cornell_campaign("laser_paper", seed=2, fit=False, **kw)["_samples"]
@@ -113,7 +113,7 @@ def test_external_script_runs_a_cornell_campaign_on_the_served_bench(tmp_path):
 
 
 def test_open_served_rig_rejects_incomplete_records():
-    from gonio.hardware import open_served_rig
+    from gonio.campaign.drivers import open_served_rig
 
     with pytest.raises(ValueError, match="esp300"), open_served_rig([{"device": "ptp"}]):
         pass

@@ -1,4 +1,4 @@
-"""The simulated LBL imaging gonioreflectometer (003_0632ad07325ce89d.txt §3)."""
+"""The simulated LBL imaging gonioreflectometer (Ward 1992, §3)."""
 
 from __future__ import annotations
 
@@ -312,7 +312,7 @@ def test_bad_instrument_input():
 
 
 def test_tabulated_grey_and_spectral(inst):
-    from gonio.merl import tabulate
+    from gonio.io.merl import tabulate
 
     grey = brdf.create("tabulated", data=tabulate("lambert", rho=0.5))
     img, meta = inst.capture(grey, TH, noise=False)

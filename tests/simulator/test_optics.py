@@ -1,4 +1,4 @@
-"""Dome mirrors, exact tracing and Ward's eq. 3 (003_0632ad07325ce89d.txt)."""
+"""Dome mirrors, exact tracing and Ward's eq. 3 (Ward 1992)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,921 @@
+"""Campaigns through the device drivers: the instruments driven only by ``gonio.drivers``
+interfaces (:class:`~gonio.drivers.interfaces.Axis`, ``MotionController``, ``Camera``,
+``Spectrometer``), with an atomic checkpoint of completed measurements.
+
+Two instruments:
+
+* :class:`CornellRig` + :func:`run_cornell_measurements` — the Cornell three-axis
+  gonioreflectometer (Li and Torrance 2005, §5.1): three motor axes
+  (``arm``, ``turntable``, ``tilt``, degrees), four accessory axes (``polarizer`` 0° = s /
+  90° = p, the ``target`` slide, the ND ``filter`` wheel and the rotary ``shutter``; stations
+  in :mod:`gonio.simulator.bench`) and a spectrometer. The read sequence is the simulator's
+  (:meth:`gonio.simulator.cornell.CornellInstrument.calibrate` and ``measure_raw``: a preview
+  for the integration time, then a signal and a dark read per polarisation in the order of
+  ``gonio.simulator.cornell.read_sequence``: one polariser turn and two shutter moves per
+  geometry), and the raw
+  spectra are reduced with :func:`gonio.simulator.cornell.reduce_measurement`, so that
+  against the fake devices the samples equal the in-process simulation's for the same seed.
+* :func:`open_served_rig` — the same rig opened on the devices that ``gonio devices serve``
+  runs in another process (every controller of the bench, :data:`CONTROLLER_GROUPS`), for
+  external driver scripts; :func:`cornell_fake_bench` is the bench behind both.
+* :class:`LBLDriverInstrument` — the LBL imaging gonioreflectometer (Ward 1992): ESP300 axes
+  for the source arm and the sample rotation, a sample-changer axis and a PTP camera; it has
+  the ``shoot(sample, theta_i, phi_i, seed)`` method of :func:`gonio.campaign.run`, which then
+  reduces the 16-bit frames with :func:`gonio.calibration.reduce.reduce_capture` and fits.
+
+Checkpoint and resume: :class:`Checkpoint` keeps the completed measurements (index → record)
+in one ``.npz`` written atomically (temporary file + rename), flushed every ``every``
+records or ``every_s`` seconds and whenever the run stops on an exception. A resumed run
+skips the indices already there, so nothing is lost or measured twice; the reference
+(standard/direct-beam and stray-light rates) is stored beside it and reused.
+
+:func:`fake_cornell_rig` and :func:`fake_lbl_rig` set up the fake devices (ESP300s on
+pseudo-terminals, the USB2000+ and PTP camera on the fake pyusb backend) on a simulated
+bench and open the real drivers on them.
+
+References
+----------
+.. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
+   (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+.. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
+   Technical report, Program of Computer Graphics, Cornell University, 2005.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gonio.drivers.interfaces import Axis, Camera, MotionController, Spectrometer
+from gonio.io.atomic import atomic_write_bytes
+
+__all__ = [
+    "CONTROLLER_GROUPS",
+    "CORNELL_ACCESSORIES",
+    "CORNELL_MOTORS",
+    "Checkpoint",
+    "CornellRig",
+    "LBLDriverInstrument",
+    "cornell_fake_bench",
+    "eeprom_coeffs",
+    "fake_cornell_rig",
+    "fake_lbl_rig",
+    "fingerprint",
+    "open_served_rig",
+    "run_cornell_measurements",
+    "run_lbl_through_drivers",
+]
+
+#: Motor axes of the Cornell instrument (degrees), in the order of the simulator's angles.
+CORNELL_MOTORS = ("arm", "turntable", "tilt")
+#: Accessory axes of the Cornell instrument.
+CORNELL_ACCESSORIES = ("polarizer", "target", "filter", "shutter")
+#: Stages of each fake bench, grouped by ESP300 controller (axes 1..3 of each, in order).
+CONTROLLER_GROUPS: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
+    "cornell": (
+        ("motors", CORNELL_MOTORS),
+        ("accessories", ("polarizer", "target", "filter")),
+        ("shutter", ("shutter",)),
+    ),
+    "lbl": (("motors", ("source", "sample", "tilt")), ("changer", ("changer",))),
+}
+
+
+def eeprom_coeffs(coeffs: Sequence[float]) -> tuple[float, ...]:
+    """Wavelength coefficients as a USB2000+ EEPROM holds them (``%.6e`` ASCII, 7 digits).
+
+    The driver computes the pixel wavelengths from these; a simulation that is to match a
+    campaign through the drivers bit for bit uses the same rounded coefficients.
+    """
+    return tuple(float(f"{float(c):.6e}") for c in coeffs)
+
+
+# ----------------------------------------------------------------------------- checkpoint
+def fingerprint(obj: Any) -> str:
+    """SHA-256 (hex, 16 characters) of a JSON-able description or an array."""
+    if isinstance(obj, np.ndarray):
+        data = np.ascontiguousarray(obj).tobytes() + str(obj.shape).encode()
+    else:
+        data = json.dumps(obj, sort_keys=True, default=str).encode()
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+class Checkpoint:
+    """Completed measurements of a campaign, kept in one atomically written ``.npz``.
+
+    Parameters
+    ----------
+    path : path
+        The checkpoint file (``.npz``).
+    key : str
+        Fingerprint of the campaign (plan, seed, instrument); resuming from a file written
+        for another campaign raises ``ValueError``.
+    every : int
+        Write after this many new records ...
+    every_s : float
+        ... or when this many seconds passed since the last write (a run killed without
+        warning loses at most that much work, which the resumed run measures again).
+
+    Every record is a mapping of names to arrays (or numbers) of the same shapes for every
+    index. The file holds ``index`` (n,) and one stacked array per name.
+    """
+
+    def __init__(
+        self, path: str | Path, key: str, *, every: int = 50, every_s: float = 2.0
+    ) -> None:
+        if int(every) < 1:
+            raise ValueError(f"every = {every!r}: expected an integer >= 1")
+        if not (float(every_s) >= 0):
+            raise ValueError(f"every_s = {every_s!r}: expected >= 0 seconds")
+        self.path = Path(path)
+        self.key = str(key)
+        self.every = int(every)
+        self.every_s = float(every_s)
+        self.records: dict[int, dict[str, NDArray]] = {}
+        self.meta: dict[str, Any] = {}
+        self._dirty = 0
+        self._last = time.monotonic()
+        self.writes = 0
+
+    def load(self) -> int:
+        """Read the file if it exists; the number of completed records."""
+        if not self.path.is_file():
+            return 0
+        with np.load(self.path, allow_pickle=False) as z:
+            head = json.loads(str(z["__meta__"]))
+            if head.get("key") != self.key:
+                raise ValueError(
+                    f"checkpoint {self.path} belongs to another campaign "
+                    f"(key {head.get('key')!r}, expected {self.key!r}); use another directory"
+                )
+            names = [n for n in z.files if n not in ("__meta__", "index")]
+            idx = z["index"]
+            for j, i in enumerate(idx.tolist()):
+                self.records[int(i)] = {n: np.array(z[n][j]) for n in names}
+            self.meta = head.get("meta", {})
+        return len(self.records)
+
+    def __contains__(self, index: int) -> bool:
+        return int(index) in self.records
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def add(self, index: int, record: Mapping[str, Any]) -> None:
+        """Record measurement ``index`` (a second record of the same index is an error)."""
+        index = int(index)
+        if index in self.records:
+            raise ValueError(f"index = {index}: already recorded (a duplicated measurement)")
+        self.records[index] = {k: np.asarray(v) for k, v in record.items()}
+        self._dirty += 1
+        if self._dirty >= self.every or time.monotonic() - self._last >= self.every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the file now (atomically) if anything changed."""
+        if not self._dirty and self.path.is_file():
+            return
+        idx = np.array(sorted(self.records), dtype=np.int64)
+        arrays: dict[str, Any] = {"index": idx}
+        if len(idx):
+            for n in self.records[int(idx[0])]:
+                arrays[n] = np.stack([self.records[int(i)][n] for i in idx])
+        arrays["__meta__"] = np.array(json.dumps({"key": self.key, "meta": self.meta}))
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write_bytes(self.path, buf.getvalue())
+        self._dirty = 0
+        self._last = time.monotonic()
+        self.writes += 1
+
+
+# ----------------------------------------------------------------------------- Cornell rig
+@dataclass
+class CornellRig:
+    """The Cornell instrument as seen by the campaign: named axes and a spectrometer.
+
+    Parameters
+    ----------
+    axes : mapping of str to Axis
+        ``arm``, ``turntable``, ``tilt`` (degrees) and the accessories ``polarizer``
+        (degrees: 0 = s, 90 = p), ``target`` (slide, stations ``target_stations``),
+        ``filter`` (ND filter wheel, ``filter_stations``) and ``shutter``
+        (``shutter_stations``); they may belong to any number of controllers.
+    spectrometer : Spectrometer
+    move_timeout : float
+        Seconds allowed for one move.
+    """
+
+    axes: Mapping[str, Axis]
+    spectrometer: Spectrometer
+    target_stations: Mapping[str, float] = field(
+        default_factory=lambda: {"sample": 0.0, "standard": 25.0, "beam_trap": 50.0, "direct": 75.0}
+    )
+    filter_stations: Mapping[str, float] = field(default_factory=lambda: {"open": 0.0, "nd": 60.0})
+    shutter_stations: Mapping[str, float] = field(
+        default_factory=lambda: {"open": 0.0, "closed": 90.0}
+    )
+    polarizer_deg: Mapping[str, float] = field(default_factory=lambda: {"s": 0.0, "p": 90.0})
+    move_timeout: float = 600.0
+
+    def __post_init__(self) -> None:
+        missing = [a for a in (*CORNELL_MOTORS, *CORNELL_ACCESSORIES) if a not in self.axes]
+        if missing:
+            raise ValueError(
+                f"axes lacks {missing}; expected {list(CORNELL_MOTORS + CORNELL_ACCESSORIES)}"
+            )
+        self._where: dict[str, float] = {}
+        self._itime: float | None = None
+        self.n_reads = 0
+        self.n_moves = 0
+
+    # -- motion ------------------------------------------------------------------------------
+    def move(self, targets: Mapping[str, float]) -> dict[str, float]:
+        """Move several axes together (start all, then wait for each); read-back positions.
+
+        An axis known to sit at its target already is not moved.
+        """
+        started = []
+        for name, pos in targets.items():
+            pos = float(pos)
+            if self._where.get(name) == pos:
+                continue
+            self._where.pop(name, None)
+            self.axes[name].move_to(pos)
+            started.append((name, pos))
+        out = {}
+        for name, pos in started:
+            out[name] = self.axes[name].wait(self.move_timeout)
+            self._where[name] = pos
+            self.n_moves += 1
+        return out
+
+    def move_motors(self, angles_deg: ArrayLike) -> NDArray[np.float64]:
+        """Move the three motor axes to ``angles_deg``; the encoder positions (degrees)."""
+        a = np.asarray(angles_deg, dtype=np.float64)
+        got = self.move(dict(zip(CORNELL_MOTORS, a.tolist())))
+        return np.array([got[n] if n in got else self.axes[n].position() for n in CORNELL_MOTORS])
+
+    def forget_positions(self) -> None:
+        """Forget where the axes are (after a reconnect: move them again before reading)."""
+        self._where.clear()
+        self._itime = None
+
+    # -- reads -------------------------------------------------------------------------------
+    def read(
+        self,
+        integration_time_s: float,
+        *,
+        polarizer: str | None = "s",
+        shutter: bool = True,
+        target: str = "sample",
+        filter_in: bool = False,
+    ) -> NDArray[np.float64]:
+        """One spectrum with the accessories set as asked (the simulator's ``read``)."""
+        if target not in self.target_stations:
+            raise ValueError(f"target = {target!r}: expected one of {sorted(self.target_stations)}")
+        mv = {
+            "target": self.target_stations[target],
+            "filter": self.filter_stations["nd" if filter_in else "open"],
+            "shutter": self.shutter_stations["open" if shutter else "closed"],
+        }
+        if polarizer is not None:
+            if polarizer not in self.polarizer_deg:
+                raise ValueError(f"polarizer = {polarizer!r}: expected 's' or 'p'")
+            mv["polarizer"] = self.polarizer_deg[polarizer]
+        self.move(mv)
+        t = float(integration_time_s)
+        if self._itime != t:
+            self.spectrometer.integration_time = t
+            self._itime = t
+        self.n_reads += 1
+        return np.asarray(self.spectrometer.intensities(), dtype=np.float64)
+
+
+class _CornellProcedures:
+    """The simulator's measurement procedures, performed on a :class:`CornellRig`.
+
+    Mirrors ``CornellInstrument.auto_exposure``, ``measure_raw`` and ``calibrate`` read for
+    read (same targets, polarisations, integration times and order:
+    ``gonio.simulator.cornell.read_sequence``, the preview's polariser alternating from
+    geometry to geometry by ``first_polarizer(index)``, so that a resumed run reads exactly
+    what an uninterrupted one does), so that keyed noise of the fake spectrometer matches
+    the in-process simulation.
+    """
+
+    def __init__(self, rig: CornellRig, config: Any) -> None:
+        self.rig = rig
+        self.c = config
+
+    def auto_exposure(self, target: str, polarizer: str = "s") -> tuple[float, bool]:
+        from gonio.simulator.cornell import auto_exposure
+
+        return auto_exposure(self.rig.read, self.c, target, polarizer)
+
+    def measure_raw(
+        self, target: str, n_reads: int = 1, first: str = "s"
+    ) -> dict[str, dict[str, Any]]:
+        from gonio.simulator.cornell import measure_raw
+
+        return measure_raw(self.rig.read, self.c, target, n_reads, first)
+
+    def calibrate(self, mode: str, wavelengths: NDArray) -> Any:
+        from gonio.simulator.cornell import (
+            Reference,
+            _net_rate,
+            effective_cos,
+            forward,
+            read_sequence,
+        )
+        from gonio.simulator.spectra import spectralon_reflectance
+
+        c = self.c
+        if mode == "standard":
+            pos = self.rig.move_motors(np.degrees(c.reference_angles()))
+            target = "standard"
+            cos_ref = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
+            scale = spectralon_reflectance(wavelengths) / math.pi * cos_ref
+        elif mode == "direct":
+            self.rig.move_motors([180.0, 0.0, 0.0])
+            target = "direct"
+            scale = np.full(wavelengths.shape, 1.0 / c.omega_nominal)
+        else:
+            raise ValueError(f"reference = {mode!r}: expected 'standard' or 'direct'")
+        n = max(1, int(c.n_reference_reads))
+        raws = self.measure_raw(target, n_reads=n, first="s")
+        traps: dict[tuple[str, bool], NDArray] = {}
+        for q, shutter in read_sequence("p"):
+            kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
+            traps[(q, shutter)] = np.mean([self.rig.read(c.t_max, **kw) for _ in range(n)], 0)
+        stray, rate = {}, {}
+        for q in ("s", "p"):
+            stray[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
+            r = raws[q]
+            tr = c.filter_transmission if r["filter"] else 1.0
+            rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
+        return Reference(mode, wavelengths, rate, stray, scale, {"t": raws["s"]["t"]})
+
+
+def _save_reference(path: Path, ref: Any, key: str) -> None:
+    buf = io.BytesIO()
+    np.savez(
+        buf,
+        key=np.array(key),
+        mode=np.array(ref.mode),
+        wavelengths_nm=ref.wavelengths_nm,
+        scale=ref.scale,
+        rate_s=ref.rate["s"],
+        rate_p=ref.rate["p"],
+        stray_s=ref.stray["s"],
+        stray_p=ref.stray["p"],
+        meta=np.array(json.dumps(ref.meta)),
+    )
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _load_reference(path: Path, key: str) -> Any:
+    from gonio.simulator.cornell import Reference
+
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        if str(z["key"]) != key:
+            raise ValueError(f"reference {path} belongs to another campaign; use another directory")
+        return Reference(
+            str(z["mode"]),
+            z["wavelengths_nm"],
+            {"s": z["rate_s"], "p": z["rate_p"]},
+            {"s": z["stray_s"], "p": z["stray_p"]},
+            z["scale"],
+            json.loads(str(z["meta"])),
+        )
+
+
+def run_cornell_measurements(
+    rig: CornellRig,
+    angles_deg: ArrayLike,
+    *,
+    config: Any = None,
+    reference: str = "standard",
+    checkpoint: Checkpoint | None = None,
+    reference_path: str | Path | None = None,
+    on_measurement: Callable[[int, int], None] | None = None,
+    retries: int = 1,
+) -> dict[str, NDArray]:
+    """Measure every geometry of ``angles_deg`` (N, 3 motor angles, degrees, in order).
+
+    Calibrates first (or reloads the reference from ``reference_path``), then for each
+    geometry not already in ``checkpoint``: move, read (preview, signal and dark per
+    polarisation, the preview's polariser alternating by geometry index), reduce to 31
+    bands, record. A device error on a geometry (after the
+    drivers' own retries) is retried ``retries`` times from the move on; then it propagates
+    (the checkpoint is flushed first, so a later call resumes).
+
+    Returns arrays in plan order: ``value`` and ``sigma`` (N, 31), ``t`` (N,) integration
+    times, ``filter`` (N,), ``saturated`` (N,), ``positions_deg`` (N, 3) read back from the
+    axes, ``resumed`` (number of geometries taken from the checkpoint), ``reference`` (the
+    ``Reference`` used).
+    """
+    from gonio.drivers.errors import DeviceError
+    from gonio.simulator.cornell import (
+        BANDS_NM,
+        CornellConfig,
+        effective_cos,
+        first_polarizer,
+        forward,
+        reduce_measurement,
+    )
+
+    c = config or CornellConfig()
+    ang = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
+    n = len(ang)
+    key = checkpoint.key if checkpoint is not None else fingerprint(ang)
+    proc = _CornellProcedures(rig, c)
+    wl = np.asarray(rig.spectrometer.wavelengths(), dtype=np.float64)
+    ref_path = Path(reference_path) if reference_path is not None else None
+    ref = _load_reference(ref_path, key) if ref_path is not None else None
+    if ref is None:
+        ref = proc.calibrate(reference, wl)
+        if ref_path is not None:
+            _save_reference(ref_path, ref, key)
+    resumed = len(checkpoint) if checkpoint is not None else 0
+    records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
+    try:
+        for j in range(n):
+            if j in records:
+                continue
+            for attempt in range(retries + 1):
+                try:
+                    pos = rig.move_motors(ang[j])
+                    raws = proc.measure_raw("sample", first=first_polarizer(j))
+                    break
+                except DeviceError:
+                    if attempt == retries:
+                        raise
+                    rig.forget_positions()
+            ci = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
+            v, s, sat = reduce_measurement(raws, ref, ci, c, BANDS_NM)
+            rec = {
+                "value": v,
+                "sigma": s,
+                "t": float(raws["s"]["t"]),
+                "filter": int(raws["s"]["filter"]),
+                "saturated": bool(sat),
+                "positions_deg": pos,
+            }
+            records[j] = rec
+            if checkpoint is not None:
+                checkpoint.add(j, rec)
+            if on_measurement is not None:
+                on_measurement(j, n)
+    finally:
+        if checkpoint is not None:
+            checkpoint.flush()
+    nb = len(BANDS_NM)
+    out = {
+        "value": np.array([records[j]["value"] for j in range(n)]).reshape(n, nb),
+        "sigma": np.array([records[j]["sigma"] for j in range(n)]).reshape(n, nb),
+        "t": np.array([float(records[j]["t"]) for j in range(n)]),
+        "filter": np.array([int(records[j]["filter"]) for j in range(n)]),
+        "saturated": np.array([bool(records[j]["saturated"]) for j in range(n)]),
+        "positions_deg": np.array([records[j]["positions_deg"] for j in range(n)]).reshape(n, 3),
+        "resumed": np.array(resumed),
+        "reference_t": np.array(float(ref.meta.get("t", np.nan))),
+        "reference": ref,
+    }
+    return out
+
+
+# ----------------------------------------------------------------------------- LBL through drivers
+class LBLDriverInstrument:
+    """The LBL imaging gonioreflectometer through drivers, for :func:`gonio.campaign.run`.
+
+    Parameters
+    ----------
+    source, sample : Axis
+        The source arm (θi, degrees) and the sample holder rotation ψ (degrees,
+        ``φi = arm_azimuth − ψ``).
+    changer : Axis
+        Sample changer slide; ``stations`` maps ``"sample"``, ``"standard"``, ``"empty"`` to
+        its positions.
+    camera : Camera
+    description : mapping
+        The laboratory's record of the instrument for the reduction's side-cars: ``lens``,
+        ``mirror``, ``sensor``, ``rho_standard``, ``source`` (with ``arm_azimuth``) and any
+        other static keys; per-frame keys (θi, φi, sample rotation, exposure, f-number) are
+        added from the axes and the camera.
+    exposures_s : sequence of float
+        Exposure bracket (seconds) at ``f_number``; default ``(0.01,)``.
+    f_numbers : sequence of float, optional
+        A bracket of f-stops at the first exposure instead.
+
+    ``shoot(sample, theta_i, phi_i, seed)`` puts the standard (``sample == "standard"``),
+    nothing (``None``) or the sample under the dome and captures the bracket; the seed is
+    recorded but cannot steer a device's noise.
+    """
+
+    def __init__(
+        self,
+        source: Axis,
+        sample: Axis,
+        changer: Axis,
+        camera: Camera,
+        description: Mapping[str, Any],
+        *,
+        stations: Mapping[str, float] | None = None,
+        exposures_s: Sequence[float] = (0.01,),
+        f_number: float = 4.0,
+        f_numbers: Sequence[float] | None = None,
+        move_timeout: float = 120.0,
+    ) -> None:
+        self.source, self.sample, self.changer, self.camera = source, sample, changer, camera
+        self.description = dict(description)
+        self.stations = dict(stations or {"sample": 0.0, "standard": 25.0, "empty": 50.0})
+        exp = tuple(float(e) for e in exposures_s)
+        if not exp or any(not (e > 0 and math.isfinite(e)) for e in exp):
+            raise ValueError(f"exposures_s = {exposures_s!r}: expected positive seconds")
+        self.bracket = (
+            [(exp[0], float(f)) for f in f_numbers]
+            if f_numbers
+            else [(e, float(f_number)) for e in exp]
+        )
+        self.move_timeout = float(move_timeout)
+        self.arm_azimuth = float(self.description.get("source", {}).get("arm_azimuth", 0.0))
+        self.n_frames = 0
+
+    def _move(self, axis: Axis, pos: float) -> float:
+        axis.move_to(float(pos))
+        return axis.wait(self.move_timeout)
+
+    def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> list:
+        """Frames ``[(uint16 image, metadata), ...]`` of one scene (see the class)."""
+        kind = "empty" if sample is None else "standard" if sample == "standard" else "sample"
+        psi = math.degrees(self.arm_azimuth - float(phi_i))
+        psi = (psi + 180.0) % 360.0 - 180.0
+        self.source.move_to(round(math.degrees(float(theta_i)), 6))
+        self.sample.move_to(round(psi, 6))
+        self.changer.move_to(self.stations[kind])
+        th = self.source.wait(self.move_timeout)
+        ps = self.sample.wait(self.move_timeout)
+        self.changer.wait(self.move_timeout)
+        rot = math.radians(ps)
+        phi = self.arm_azimuth - rot
+        phi = math.pi - (math.pi - phi) % (2 * math.pi)
+        frames = []
+        for e, f in self.bracket:
+            self.camera.exposure = e
+            self.camera.f_number = f
+            img, cam_meta = self.camera.capture()
+            meta = dict(self.description)
+            meta.update(
+                theta_i=math.radians(th),
+                phi_i=phi,
+                sample_rotation=rot,
+                exposure_s=float(cam_meta.get("exposure_s", e)),
+                f_number=float(cam_meta.get("f_number", f)),
+                sample={"sample": "brdf", "standard": "standard", "empty": "none"}[kind],
+                seed=int(seed),
+                shape=list(img.shape),
+                dtype=str(img.dtype),
+                camera={k: v for k, v in cam_meta.items() if isinstance(v, int | float | str)},
+            )
+            frames.append((img, meta))
+            self.n_frames += 1
+        return frames
+
+
+def run_lbl_through_drivers(
+    plan: Any = None,
+    out: str | Path | None = None,
+    *,
+    resume: bool = False,
+    quiet: bool = True,
+    time_scale: float = 1e4,
+    f_number: float = 4.0,
+) -> Any:
+    """An LBL campaign (:func:`gonio.campaign.run`) on the fake devices through the drivers.
+
+    The plan's ``exposures_s`` (default ``(0.01,)``) is the bracket at ``f_number``; the
+    captures are checkpointed per group by ``gonio.campaign`` (``raw/<key>/done.json``), so
+    ``resume=True`` continues an interrupted run without capturing a group twice.
+    """
+    from gonio import campaign
+
+    plan = (plan or campaign.Plan()).resolved()
+    exp = plan.exposures_s or (0.01,)
+    with fake_lbl_rig(
+        plan.material,
+        seed=plan.seed,
+        noise=plan.noise > 0,
+        mirror=plan.mirror,
+        time_scale=time_scale,
+        exposures_s=exp,
+        f_number=f_number,
+    ) as (dev, _parts):
+        return campaign.run(plan, out, resume=resume, quiet=quiet, instrument=dev)
+
+
+# ----------------------------------------------------------------------------- fake rigs
+def cornell_fake_bench(
+    material: Any = "garnet_red_paint",
+    *,
+    seed: int = 0,
+    noise: bool = True,
+    config: Any = None,
+    time_scale: float = 1e4,
+    prime: ArrayLike | None = None,
+) -> tuple[Any, Any]:
+    """The simulated bench behind the Cornell fakes: ``(bench, instrument)``.
+
+    All seven stages of ``gonio.simulator.bench`` (the motors ``arm``, ``turntable``,
+    ``tilt``; the accessories ``polarizer``, ``target``, ``filter``, ``shutter``) without
+    backlash or positioning noise, a 1024-pixel spectrometer with the wavelength
+    coefficients its EEPROM can hold (:func:`eeprom_coeffs`), rendering
+    ``CornellInstrument(material, config, noise, rng=seed).spectrum_render`` through the
+    accessory stations. ``material``: a preset name, a BRDF, or ``None`` (Lambertian).
+    With the same ``seed`` a campaign on this bench reads the same keyed noise as
+    :func:`gonio.simulator.cornell.simulate_campaign` in-process. ``prime`` (N, 3 motor
+    angles, radians) precomputes the simulator's cone-averaged BRDF there (speed only).
+    """
+    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
+    from gonio.simulator.cornell import CornellConfig, CornellInstrument
+
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed = {seed!r}: expected a non-negative integer")
+    cfg = config or CornellConfig()
+    cfg = replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
+    sample = material
+    if sample is None:
+        from gonio import brdf
+
+        sample = brdf.create("lambert")
+    inst = CornellInstrument(sample, config=cfg, noise=noise, rng=int(seed))
+    if prime is not None:
+        inst.prime(np.asarray(prime, dtype=np.float64).reshape(-1, 3))
+    stages = [Stage(name, **kw) for name, kw in stage_table["cornell"]]
+    bench = Bench(
+        stages,
+        time_scale=time_scale,
+        spectrum_render=cornell_spectrum_render(inst.spectrum_render),
+        wavelength_coeffs=tuple(cfg.wavelength_coeffs),
+        instrument="cornell",
+        material=material if isinstance(material, str) else None,
+        n_pixels=int(cfg.n_pixels),
+    )
+    return bench, inst
+
+
+@contextlib.contextmanager
+def fake_cornell_rig(
+    material: Any = "garnet_red_paint",
+    *,
+    seed: int = 0,
+    noise: bool = True,
+    config: Any = None,
+    time_scale: float = 1e4,
+    faults: Mapping[str, Any] | None = None,
+    prime: ArrayLike | None = None,
+    device_timeout: float = 2.0,
+) -> Iterator[tuple[CornellRig, dict[str, Any]]]:
+    """The Cornell instrument on fake devices: ``(rig, parts)``.
+
+    Three fake ESP300 controllers on pseudo-terminals (:data:`CONTROLLER_GROUPS`: motors;
+    polariser, target slide and filter wheel; shutter) and a fake USB2000+ on the fake pyusb
+    backend, all on :func:`cornell_fake_bench` (``material``, ``seed``, ``noise``,
+    ``config``, ``time_scale``, ``prime``). The rig is opened with the real drivers.
+    ``faults`` maps ``"esp300"`` (the motor controller) / ``"usb2000plus"`` to
+    ``gonio.drivers.fake.faults.Faults`` objects. ``device_timeout``: the drivers' reply
+    timeout (s). ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
+    ``instrument`` (the simulator behind the spectrometer), ``controllers``.
+    """
+    from gonio.drivers.esp300 import ESP300
+    from gonio.drivers.fake import usb as fakeusb
+    from gonio.drivers.fake.esp300 import FakeESP300Server
+    from gonio.drivers.fake.faults import Faults
+    from gonio.drivers.usb2000 import USB2000Plus
+
+    bench, inst = cornell_fake_bench(
+        material, seed=seed, noise=noise, config=config, time_scale=time_scale, prime=prime
+    )
+    faults = dict(faults or {})
+    servers: list[Any] = []
+    ctls: list[Any] = []
+    name = fakeusb.install(bench)
+    spec = None
+    try:
+        if "usb2000plus" in faults:
+            fakeusb.devices(name)["usb2000plus"].faults = faults["usb2000plus"]
+        for k, (_role, g) in enumerate(CONTROLLER_GROUPS["cornell"]):
+            f = faults.get("esp300") if k == 0 else None
+            srv = FakeESP300Server(bench, axes=list(g), faults=f or Faults()).start()
+            servers.append(srv)
+            ctl = ESP300.open(
+                srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=device_timeout
+            )
+            ctl.enable()
+            ctls.append(ctl)
+        spec = USB2000Plus.open(name, n_pixels=None, timeout=max(device_timeout, 0.5))
+        axes: dict[str, Axis] = {}
+        for ctl in ctls:
+            axes.update(ctl.axes)
+        rig = CornellRig(axes, spec)
+        yield (
+            rig,
+            {
+                "bench": bench,
+                "servers": servers,
+                "usb": name,
+                "instrument": inst,
+                "controllers": ctls,
+            },
+        )
+    finally:
+        if spec is not None:
+            with contextlib.suppress(Exception):
+                spec.close()
+        for ctl in ctls:
+            with contextlib.suppress(Exception):
+                ctl.close()
+        for srv in servers:
+            with contextlib.suppress(Exception):
+                srv.stop()
+        fakeusb.uninstall(name)
+
+
+@contextlib.contextmanager
+def open_served_rig(
+    records: Sequence[Mapping[str, Any]],
+    *,
+    via: str = "pty",
+    device_timeout: float = 2.0,
+) -> Iterator[tuple[Any, dict[str, Any]]]:
+    """Open, with the real drivers, the devices that ``gonio devices serve --json`` printed.
+
+    ``records``: the JSON objects of its output lines (one per device: every ``esp300``
+    controller with its ``axes`` {"1": stage name, ...}, the ``usb2000plus`` and the
+    ``ptp`` camera with the ``usb_server`` address of the fake USB bus). ``via``: reach the
+    ESP300s by their pseudo-terminal (``"pty"``) or by TCP (``"tcp"``). Yields
+    ``(rig, parts)``: for a Cornell bench (``arm`` among the axes) ``rig`` is a
+    :class:`CornellRig` over all seven axes and the spectrometer, ready for
+    :func:`run_cornell_measurements`; otherwise a dict ``{"axes": {name: Axis},
+    "camera": PTPCamera}``. ``parts``: ``controllers``, ``usb`` (the pyusb backend name
+    connected to the served bus). Everything is closed on exit.
+
+    Example (an external driver script)::
+
+        # shell: gonio devices serve --instrument cornell --material laser_paper --seed 2 --json
+        with open_served_rig([json.loads(line) for line in lines]) as (rig, _):
+            res = run_cornell_measurements(rig, angles_deg)
+    """
+    from gonio.drivers.esp300 import ESP300
+    from gonio.drivers.fake import usb as fakeusb
+
+    if via not in ("pty", "tcp"):
+        raise ValueError(f"via = {via!r}: expected 'pty' or 'tcp'")
+    recs = [dict(r) for r in records]
+    esps = [r for r in recs if r.get("device") == "esp300"]
+    usbs = [r for r in recs if r.get("device") in ("usb2000plus", "ptp")]
+    if not esps:
+        raise ValueError("records: expected at least one 'esp300' record")
+    if not usbs:
+        raise ValueError("records: expected a 'usb2000plus' or 'ptp' record (the USB bus)")
+    ctls: list[Any] = []
+    dev: Any = None
+    name = fakeusb.connect(str(usbs[0]["usb_server"]))
+    try:
+        axes: dict[str, Axis] = {}
+        for r in esps:
+            port = r["port"] if via == "pty" else r["url"]
+            amap = {str(n): int(i) for i, n in r["axes"].items()}
+            ctl = ESP300.open(port, axes=amap, timeout=device_timeout)
+            ctls.append(ctl)
+            ctl.enable()
+            axes.update(ctl.axes)
+        if "arm" in axes:
+            from gonio.drivers.usb2000 import USB2000Plus
+
+            dev = USB2000Plus.open(name, n_pixels=None, timeout=max(device_timeout, 0.5))
+            rig: Any = CornellRig(axes, dev)
+        else:
+            from gonio.drivers.ptp import PTPCamera
+
+            dev = PTPCamera.open(name)
+            rig = {"axes": axes, "camera": dev}
+        yield rig, {"controllers": ctls, "usb": name}
+    finally:
+        if dev is not None:
+            with contextlib.suppress(Exception):
+                dev.close()
+        for ctl in ctls:
+            with contextlib.suppress(Exception):
+                ctl.close()
+        fakeusb.uninstall(name)
+
+
+def lbl_description(inst: Any) -> dict[str, Any]:
+    """The static part of an LBL side-car (lens, mirror, sensor, source, standard ...) from a
+    simulated instrument: what a laboratory keeps in its calibration record."""
+    _img, meta = inst.capture(None, 0.0, 0.0, noise=False, exposure=1e-4)
+    drop = {
+        "theta_i",
+        "phi_i",
+        "sample_rotation",
+        "exposure_s",
+        "f_number",
+        "sample",
+        "brdf",
+        "seed",
+        "noise",
+        "shape",
+        "dtype",
+        "bracket",
+        "band",
+        "source_samples",
+    }
+    return {k: v for k, v in meta.items() if k not in drop}
+
+
+@contextlib.contextmanager
+def fake_lbl_rig(
+    material: str = "rolled_brass",
+    *,
+    seed: int = 0,
+    noise: bool = True,
+    mirror: str = "ellipsoid",
+    time_scale: float = 1e4,
+    exposures_s: Sequence[float] = (0.01,),
+    f_number: float = 4.0,
+) -> Iterator[tuple[LBLDriverInstrument, dict[str, Any]]]:
+    """The LBL instrument on fake devices (an ESP300 with the source arm, sample rotation
+    and tilt, a second one with the sample changer, the PTP camera on the fake pyusb
+    backend), opened with the real drivers: ``(LBLDriverInstrument, parts)``."""
+    from gonio import materials
+    from gonio.drivers.esp300 import ESP300
+    from gonio.drivers.fake import usb as fakeusb
+    from gonio.drivers.fake.esp300 import FakeESP300Server
+    from gonio.drivers.ptp import PTPCamera
+    from gonio.simulator import LBLInstrument
+    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Bench, Stage, lbl_camera_render
+
+    inst = LBLInstrument(mirror=mirror)
+    gen = np.random.default_rng(seed)
+    kw = dict(source_axis="source", sample_axis="sample", rng=gen, noise=noise)
+    cams = {
+        "sample": inst.camera_render(materials.get(material), **kw),
+        "standard": inst.camera_render("standard", **kw),
+        "empty": inst.camera_render(None, **kw),
+    }
+    stages = [Stage(name, **k) for name, k in stage_table["lbl"]]
+    bench = Bench(
+        stages,
+        time_scale=time_scale,
+        camera_render=lbl_camera_render(cams),
+        instrument="lbl",
+        material=material,
+    )
+    name = fakeusb.install(bench)
+    servers, ctls = [], []
+    cam = None
+    try:
+        for g in (("source", "sample", "tilt"), ("changer",)):
+            srv = FakeESP300Server(bench, axes=list(g)).start()
+            servers.append(srv)
+            ctl = ESP300.open(srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=2.0)
+            ctl.enable()
+            ctls.append(ctl)
+        cam = PTPCamera.open(name)
+        mc: MotionController = ctls[0]
+        dev = LBLDriverInstrument(
+            mc.axis("source"),
+            mc.axis("sample"),
+            ctls[1].axis("changer"),
+            cam,
+            lbl_description(inst),
+            exposures_s=exposures_s,
+            f_number=f_number,
+        )
+        yield dev, {"bench": bench, "servers": servers, "usb": name, "instrument": inst}
+    finally:
+        if cam is not None:
+            with contextlib.suppress(Exception):
+                cam.close()
+        for ctl in ctls:
+            with contextlib.suppress(Exception):
+                ctl.close()
+        for srv in servers:
+            with contextlib.suppress(Exception):
+                srv.stop()
+        fakeusb.uninstall(name)

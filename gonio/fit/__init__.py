@@ -1,0 +1,28 @@
+"""Fitting reflectance models to BRDF samples.
+
+:func:`fit` (in :mod:`gonio.fit.core`) fits any registered model or sum of models by bounded
+non-linear least squares; the linear coefficients of a model are solved exactly for each trial
+of its other parameters by :mod:`gonio.fit.linear` (variable projection).
+"""
+
+from gonio.fit.core import (
+    RESIDUALS,
+    FitResult,
+    fit,
+    initial_guess,
+    parse_model,
+    predict,
+    register_codec,
+    register_guesser,
+)
+
+__all__ = [
+    "RESIDUALS",
+    "FitResult",
+    "fit",
+    "initial_guess",
+    "parse_model",
+    "predict",
+    "register_codec",
+    "register_guesser",
+]
