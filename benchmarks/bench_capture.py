@@ -241,7 +241,7 @@ def bench_campaign_stage(noise, repeat=3):
         n = 0
         for th in plan.theta_i_deg:
             ti = math.radians(th)
-            s = campaign.capture_seed(plan.seed, campaign.lbl._fmt_key(th))
+            s = campaign.capture_seed(plan.seed, campaign.folder.group_key(th))
             n += len(inst.bracket("standard", ti, 0.0, rng=s, noise=noise))
             n += len(inst.bracket(None, ti, 0.0, rng=s + 1, noise=noise))
             for rot in plan.rotations_deg:

@@ -93,24 +93,37 @@ def retry(
     ``clear_stall``, and a :class:`TransportTimeout` or :class:`BadReply` calls
     ``after_error`` (if given) before the next attempt. When all attempts fail, the last
     failure is raised as :class:`DeviceTimeout` (timeout), :class:`DeviceError` with the reply
-    (bad reply) or :class:`DeviceError` ("gave up").
+    (bad reply) or :class:`DeviceError` ("gave up"). Other exceptions are not retried. The
+    loop is ``tenacity``'s (no wait between attempts: the recovery is the pause).
     """
-    last: Exception | None = None
-    for _ in range(attempts):
-        try:
-            return fn()
-        except TransportDisconnected as exc:
-            last = exc
+    import tenacity
+
+    def between(state: tenacity.RetryCallState) -> None:
+        exc = state.outcome.exception() if state.outcome is not None else None
+        if isinstance(exc, TransportDisconnected):
             recover()
-        except TransportStall as exc:
-            last = exc
+        elif isinstance(exc, TransportStall):
             clear_stall()
-        except (TransportTimeout, BadReply) as exc:
-            last = exc
-            if after_error is not None:
-                after_error()
-    if isinstance(last, TransportTimeout):
+        elif after_error is not None:
+            after_error()
+
+    try:
+        for attempt in tenacity.Retrying(
+            stop=tenacity.stop_after_attempt(max(1, int(attempts))),
+            retry=tenacity.retry_if_exception_type(_RETRIED),
+            after=between,
+            reraise=True,
+        ):
+            with attempt:
+                return fn()
+    except TransportTimeout as last:
         raise DeviceTimeout(device, command, None, str(last)) from last
-    if isinstance(last, BadReply):
+    except BadReply as last:
         raise DeviceError(device, command, last.reply, str(last)) from last
-    raise DeviceError(device, command, None, f"gave up: {last}") from last
+    except (TransportDisconnected, TransportStall) as last:
+        raise DeviceError(device, command, None, f"gave up: {last}") from last
+    raise AssertionError("unreachable")  # pragma: no cover  (tenacity returns or raises)
+
+
+#: The failures :func:`retry` retries (after its recovery step).
+_RETRIED = (TransportDisconnected, TransportStall, TransportTimeout, BadReply)

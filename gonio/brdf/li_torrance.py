@@ -169,6 +169,11 @@ def _schlick_x(c: NDArray) -> NDArray:
 
 def _k_li_torrance(wi, wo, out, kdd, kudf, kuds, kfs, f0, lam_um, sigma, tau_x, tau_y, flags,
                    cos_box, d_omega):  # pragma: no cover - compiled by numba  # fmt: skip
+    """Every component of eq. 3-14 (and 20-26) for one direction pair per iteration.
+
+    One function on purpose (over 80 lines): numba compiles it to one loop with every
+    intermediate in registers; split into calls, the pieces would need arrays of their own.
+    """
     on_dd, on_udf, on_uds, on_fs, aniso, shadow, eff, shortcut, box = flags
     thr = 1.0 - 0.005 ** (sigma / tau_x)  # eq. 7 threshold of an isotropic surface
     nb = out.shape[1]

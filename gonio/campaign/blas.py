@@ -63,13 +63,21 @@ class SingleThreadBLAS:
             undo()
 
     _CONTROLLER: Any = None
+    _N_MODULES = -1
 
     @classmethod
     def _controller(cls) -> Any:
-        """One ``threadpoolctl.ThreadpoolController`` per process (scanning the loaded
-        libraries costs ~0.6 ms, a third of a no-op task), made after scipy's OpenBLAS is
-        loaded; ``None`` without threadpoolctl."""
-        if cls._CONTROLLER is None:
+        """A ``threadpoolctl.ThreadpoolController`` made after scipy's OpenBLAS is loaded;
+        ``None`` without threadpoolctl.
+
+        Scanning the loaded libraries costs ~0.6 ms (a third of a no-op task), so the
+        controller is kept, and made again only when modules were imported since: an import
+        can load another OpenBLAS (a kept controller did not see one loaded later, and left
+        it at its default thread count).
+        """
+        import sys
+
+        if cls._CONTROLLER is None or cls._N_MODULES != len(sys.modules):
             try:
                 from threadpoolctl import ThreadpoolController
             except ImportError:
@@ -77,6 +85,7 @@ class SingleThreadBLAS:
             import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, used by the fits)
 
             cls._CONTROLLER = ThreadpoolController()
+            cls._N_MODULES = len(sys.modules)
         return cls._CONTROLLER
 
     @classmethod

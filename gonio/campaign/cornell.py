@@ -50,13 +50,12 @@ import dataclasses
 import math
 import os
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from gonio.campaign.blas import single_thread_blas
+from gonio.campaign.executor import CampaignExecutor
 from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
 
@@ -563,7 +562,6 @@ def _summarise(
 
 
 # ----------------------------------------------------------------------------- campaign
-@single_thread_blas
 def run_cornell_campaign(
     material: str = "garnet_red_paint",
     *,
@@ -637,38 +635,109 @@ def run_cornell_campaign(
     on_measurement : callable(j, n), optional
         Called after each geometry through drivers (progress, fault injection in tests).
     """
-    from dataclasses import replace
+    # 1. prepare
+    with CampaignExecutor(1) as ex, ex.blas():  # BLAS on one thread, stage timings
+        with ex.stage("plan"):
+            setup = _prepare(
+                material, plan, noise=noise, seed=seed, out=out, reference=reference,
+                config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
+                plan_kw=plan_kw, through_drivers=through_drivers,
+            )  # fmt: skip
+        if not quiet:
+            how = "through the drivers on the fake devices" if through_drivers else "in-process"
+            print(f"cornell: measuring {len(setup.plan)} geometries {how} ...", file=sys.stderr,
+                  flush=True)  # fmt: skip
+        # 2. measure
+        with ex.stage("measure"):
+            if through_drivers:
+                samples, ref_obj, t_int, extra = _measure_through_drivers(
+                    setup, resume=resume, time_scale=time_scale, faults=faults,
+                    checkpoint_every=checkpoint_every, prime=prime,
+                    on_measurement=on_measurement, device_timeout=device_timeout,
+                )  # fmt: skip
+            else:
+                samples, ref_obj, t_int, extra = _measure_in_process(setup)
+        extra.update(_run_time_estimate(setup.plan, samples, t_int))
+        if setup.out is not None:
+            with ex.stage("save_samples"):
+                samples.write(setup.out / "samples.csv")
+        # 3. fit
+        if fit:
+            if not quiet:
+                print(f"cornell: fitting li_torrance to {len(samples)} samples "
+                      f"({cone_corrections} cone corrections) ...", file=sys.stderr,
+                      flush=True)  # fmt: skip
+            with ex.stage("fit"):
+                res_fit, info = fit_li_torrance(
+                    samples, material, fit_mode=fit_mode, residual=residual, config=setup.cfg,
+                    cone_corrections=cone_corrections, linear=fit_linear,
+                )  # fmt: skip
+        ex.timings["total"] = ex.elapsed()
+        # 4. report
+        if fit:
+            summary = _report(setup, res_fit, info, samples, ref_obj, ex.timings, extra)
+        else:
+            summary = {
+                "material": material, "model": None, "n_samples": len(samples),
+                "timings_s": {k: round(v, 4) for k, v in ex.timings.items()},
+                "seed": setup.seed, "noise": setup.noise, **extra,
+            }  # fmt: skip
+    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
+    if setup.out is not None:
+        _write_json(setup.out / "summary.json", summary)
+    summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
+    return summary
 
+
+@dataclasses.dataclass
+class _Setup:
+    """The checked campaign settings the stages share."""
+
+    material: str
+    plan: Any
+    cfg: Any
+    noise: bool
+    seed: int
+    reference: str
+    out: Path | None
+    settings: dict[str, Any]
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        """The samples' metadata."""
+        return {"instrument": "cornell", "material": self.material, "seed": self.seed,
+                "noise": self.noise}  # fmt: skip
+
+
+def _prepare(
+    material: str, plan: Any, *, noise: Any, seed: Any, out: Any, reference: str, config: Any,
+    resolution_deg: float, max_geometries: int | None, plan_kw: dict | None,
+    through_drivers: bool,
+) -> _Setup:  # fmt: skip
+    """Check the inputs, build the ordered plan and write ``plan.json``."""
+    from gonio import materials
     from gonio.campaign.drivers import eeprom_coeffs
-    from gonio.simulator.cornell import CornellConfig, simulate_campaign
-    from gonio.simulator.cornell_plans import Timing, estimate_run_time
+    from gonio.simulator.cornell import CornellConfig
 
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
     cfg = config or CornellConfig()
     # the spectrometer's calibration as its EEPROM stores it, on both paths
-    cfg = replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
-    noise_on = bool(noise)
+    cfg = dataclasses.replace(cfg, wavelength_coeffs=eeprom_coeffs(cfg.wavelength_coeffs))
     if not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed = {seed!r}: expected a non-negative integer")
     if reference not in ("standard", "direct"):
         raise ValueError(f"reference = {reference!r}: expected 'standard' or 'direct'")
-    from gonio import materials
-
     materials.info(material)  # unknown preset -> ValueError listing them
-    t = time.perf_counter()
     p = build_plan(
         plan, config=cfg, resolution_deg=resolution_deg, max_geometries=max_geometries,
         **(plan_kw or {}),
     )  # fmt: skip
-    timings["plan"] = time.perf_counter() - t
     outp = Path(out) if out is not None else None
     settings = {
         "material": material,
         "plan": str(plan) if not hasattr(plan, "angles") else "custom",
         "plan_kw": plan_kw or {},
         "n_geometries": len(p),
-        "noise": noise_on,
+        "noise": bool(noise),
         "seed": int(seed),
         "reference": reference,
         "resolution_deg": resolution_deg,
@@ -678,68 +747,80 @@ def run_cornell_campaign(
     if outp is not None:
         outp.mkdir(parents=True, exist_ok=True)
         _write_json(outp / "plan.json", settings)
-    meta = {"instrument": "cornell", "material": material, "seed": int(seed), "noise": noise_on}
-    how = "through the drivers on the fake devices" if through_drivers else "in-process"
-    if not quiet:
-        print(f"cornell: measuring {len(p)} geometries {how} ...", file=sys.stderr, flush=True)
-    extra: dict[str, Any] = {"through_drivers": bool(through_drivers), "n_geometries": len(p)}
-    t = time.perf_counter()
-    if not through_drivers:
-        samples = simulate_campaign(
-            p, material, rng=int(seed), noise=noise_on, reference=reference, config=cfg,
-            order=False,
+    return _Setup(material, p, cfg, bool(noise), int(seed), reference, outp, settings)
+
+
+def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str, Any]]:
+    """The plan measured by the simulator in this process; samples, reference, no integration
+    times (they are estimated), extra summary fields."""
+    from gonio.simulator.cornell import CornellInstrument, simulate_campaign
+
+    samples = simulate_campaign(
+        setup.plan, setup.material, rng=setup.seed, noise=setup.noise,
+        reference=setup.reference, config=setup.cfg, order=False,
+    )  # fmt: skip
+    samples.metadata.update(setup.meta)
+    # the same keyed noise: a fresh instrument calibrates to the very same reference
+    ref_obj = CornellInstrument(setup.material, config=setup.cfg, noise=setup.noise,
+                                rng=setup.seed).calibrate(setup.reference)  # fmt: skip
+    extra = {"through_drivers": False, "n_geometries": len(setup.plan),
+             "n_saturated": int(samples.metadata.get("n_saturated", 0))}  # fmt: skip
+    return samples, ref_obj, None, extra
+
+
+def _measure_through_drivers(
+    setup: _Setup, *, resume: bool, time_scale: float, faults: Any, checkpoint_every: int,
+    prime: bool, on_measurement: Any, device_timeout: float,
+) -> tuple[BRDFSamples, Any, np.ndarray, dict[str, Any]]:  # fmt: skip
+    """The plan measured through the real drivers on the fake devices (checkpointed, so a
+    resumed run measures only what is missing)."""
+    from gonio.campaign.drivers import (
+        Checkpoint,
+        fake_cornell_rig,
+        fingerprint,
+        run_cornell_measurements,
+    )
+
+    p, outp = setup.plan, setup.out
+    extra: dict[str, Any] = {"through_drivers": True, "n_geometries": len(p)}
+    key = fingerprint({**setup.settings,
+                       "angles": fingerprint(np.round(np.degrees(p.angles), 6))})  # fmt: skip
+    ck = None
+    if outp is not None:
+        ck = Checkpoint(outp / "checkpoint.npz", key, every=checkpoint_every)
+        if resume:
+            ck.load()
+        elif (outp / "checkpoint.npz").exists():
+            (outp / "checkpoint.npz").unlink()
+            (outp / "reference.npz").unlink(missing_ok=True)
+    with fake_cornell_rig(
+        setup.material, seed=setup.seed, noise=setup.noise, config=setup.cfg,
+        time_scale=time_scale, faults=faults, prime=p.angles if prime else None,
+        device_timeout=device_timeout,
+    ) as (rig, _parts):  # fmt: skip
+        res = run_cornell_measurements(
+            rig, np.degrees(p.angles), config=setup.cfg, reference=setup.reference,
+            checkpoint=ck, reference_path=(outp / "reference.npz") if outp is not None else None,
+            on_measurement=on_measurement,
         )  # fmt: skip
-        t_int = None
-        samples.metadata.update(meta)
-        from gonio.simulator.cornell import CornellInstrument
+        extra["device_reads"] = rig.n_reads
+        extra["device_moves"] = rig.n_moves
+    sig = res["sigma"] if setup.noise else np.full_like(res["sigma"], np.nan)
+    samples = _samples_from(
+        np.radians(res["positions_deg"]), res["value"], sig, setup.cfg.kinematics, setup.meta
+    )
+    extra["resumed_geometries"] = int(res["resumed"])
+    extra["n_saturated"] = int(res["saturated"].sum())
+    if ck is not None:
+        extra["checkpoint_writes"] = ck.writes
+    return samples, res["reference"], res["t"], extra
 
-        # the same keyed noise: a fresh instrument calibrates to the very same reference
-        ref_obj = CornellInstrument(material, config=cfg, noise=noise_on, rng=int(seed))
-        ref_obj = ref_obj.calibrate(reference)
-        extra["n_saturated"] = int(samples.metadata.get("n_saturated", 0))
-    else:
-        from gonio.campaign.drivers import (
-            Checkpoint,
-            fake_cornell_rig,
-            fingerprint,
-            run_cornell_measurements,
-        )
 
-        key = fingerprint({**settings, "angles": fingerprint(np.round(np.degrees(p.angles), 6))})
-        ck = None
-        if outp is not None:
-            ck = Checkpoint(outp / "checkpoint.npz", key, every=checkpoint_every)
-            if resume:
-                ck.load()
-            elif (outp / "checkpoint.npz").exists():
-                (outp / "checkpoint.npz").unlink()
-                (outp / "reference.npz").unlink(missing_ok=True)
-        with fake_cornell_rig(
-            material, seed=int(seed), noise=noise_on, config=cfg, time_scale=time_scale,
-            faults=faults, prime=p.angles if prime else None, device_timeout=device_timeout,
-        ) as (rig, _parts):  # fmt: skip
-            res = run_cornell_measurements(
-                rig,
-                np.degrees(p.angles),
-                config=cfg,
-                reference=reference,
-                checkpoint=ck,
-                reference_path=(outp / "reference.npz") if outp is not None else None,
-                on_measurement=on_measurement,
-            )
-            extra["device_reads"] = rig.n_reads
-            extra["device_moves"] = rig.n_moves
-        sig = res["sigma"] if noise_on else np.full_like(res["sigma"], np.nan)
-        samples = _samples_from(
-            np.radians(res["positions_deg"]), res["value"], sig, cfg.kinematics, meta
-        )
-        t_int = res["t"]
-        ref_obj = res["reference"]
-        extra["resumed_geometries"] = int(res["resumed"])
-        extra["n_saturated"] = int(res["saturated"].sum())
-        if ck is not None:
-            extra["checkpoint_writes"] = ck.writes
-    timings["measure"] = time.perf_counter() - t
+def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, Any]:
+    """What the real instrument would take for the plan (summary fields)."""
+    from gonio.simulator.cornell_plans import Timing, estimate_run_time
+
+    extra: dict[str, Any] = {}
     if t_int is None:
         est = estimate_run_time(p, Timing(), None)
         est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
@@ -751,56 +832,30 @@ def run_cornell_campaign(
         }
         extra["mean_integration_s"] = float(np.mean(t_int))
     extra["estimated_real_instrument_h"] = est_h
-    if outp is not None:
-        t = time.perf_counter()
-        samples.write(outp / "samples.csv")
-        timings["save_samples"] = time.perf_counter() - t
-    summary: dict[str, Any]
-    if fit:
-        if not quiet:
-            print(
-                f"cornell: fitting li_torrance to {len(samples)} samples "
-                f"({cone_corrections} cone corrections) ...",
-                file=sys.stderr,
-                flush=True,
-            )
-        t = time.perf_counter()
-        res_fit, info = fit_li_torrance(
-            samples,
-            material,
-            fit_mode=fit_mode,
-            residual=residual,
-            config=cfg,
-            cone_corrections=cone_corrections,
-            linear=fit_linear,
-        )
-        timings["fit"] = time.perf_counter() - t
-        timings["total"] = time.perf_counter() - t_start
-        ref_err = reference_band_error(ref_obj, cfg) if noise_on else np.zeros(31)
-        offset_err = None
-        if noise_on:  # the stray-light estimate's additive offset, through each k
-            sd = stray_offset_error(ref_obj, cfg)
-            sens = offset_sensitivity(res_fit.model, samples, info["free_k"], cfg)
-            offset_err = {
-                f"{k}[{b}]": float(abs(g[b]) * sd[b]) for k, g in sens.items() for b in range(31)
-            }
-        summary = _summarise(
-            material, res_fit, info, samples, seed, noise_on, timings, extra, ref_err,
-            offset_err,
-        )  # fmt: skip
-        if outp is not None:
-            _write_json(outp / "fit.json", res_fit.to_dict())
-    else:
-        timings["total"] = time.perf_counter() - t_start
-        summary = {
-            "material": material, "model": None, "n_samples": len(samples),
-            "timings_s": {k: round(v, 4) for k, v in timings.items()}, "seed": int(seed),
-            "noise": noise_on, **extra,
-        }  # fmt: skip
-    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if outp else {}
-    if outp is not None:
-        _write_json(outp / "summary.json", summary)
-    summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
+    return extra
+
+
+def _report(
+    setup: _Setup, res_fit: Any, info: dict[str, Any], samples: BRDFSamples, ref_obj: Any,
+    timings: dict[str, float], extra: dict[str, Any],
+) -> dict[str, Any]:  # fmt: skip
+    """The summary of a fitted campaign (with the reference's and the stray-light offset's
+    error contributions when noise is on); writes ``fit.json``."""
+    cfg = setup.cfg
+    ref_err = reference_band_error(ref_obj, cfg) if setup.noise else np.zeros(31)
+    offset_err = None
+    if setup.noise:  # the stray-light estimate's additive offset, through each k
+        sd = stray_offset_error(ref_obj, cfg)
+        sens = offset_sensitivity(res_fit.model, samples, info["free_k"], cfg)
+        offset_err = {
+            f"{k}[{b}]": float(abs(g[b]) * sd[b]) for k, g in sens.items() for b in range(31)
+        }
+    summary = _summarise(
+        setup.material, res_fit, info, samples, setup.seed, setup.noise, timings, extra,
+        ref_err, offset_err,
+    )  # fmt: skip
+    if setup.out is not None:
+        _write_json(setup.out / "fit.json", res_fit.to_dict())
     return summary
 
 

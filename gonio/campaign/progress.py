@@ -1,8 +1,10 @@
-"""A small terminal progress bar for long stages (campaign captures, reductions, fits).
+"""The campaign's terminal progress bars: a thin layer over ``tqdm``.
 
-The bar appears only on a terminal, only once a task has run longer than ``min_time``
-(1 s by default), and never with ``quiet=True``; it redraws at most ten times a second and
-clears its line when it closes, so short runs and logs stay clean.
+A bar appears only on a terminal, only once a task has run longer than ``min_time`` (1 s
+by default), and never with ``quiet=True``; it clears its line when it closes, so short runs
+and logs stay clean. ``tqdm`` draws it (``delay``, ``leave=False``) and is imported only
+when a bar can appear: its import (~70 ms measured here) is 4 % of a default campaign, which
+on a pipe or with ``--quiet`` draws nothing.
 
 >>> with Progress(3, "capture", quiet=True) as bar:
 ...     for _ in range(3):
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Any, TextIO
 
 __all__ = ["Progress"]
 
@@ -37,6 +39,8 @@ class Progress:
         Seconds of work before the bar first appears.
     force : bool
         Draw even when ``stream`` is not a terminal (tests).
+    width : int
+        Characters of the bar itself.
     """
 
     def __init__(
@@ -54,46 +58,43 @@ class Progress:
             raise ValueError(f"total must be >= 0, got {total!r}")
         self.total = int(total)
         self.label = label
-        self.stream = stream if stream is not None else sys.stderr
-        tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.enabled = not quiet and (tty or force)
-        self.min_time = float(min_time)
-        self.width = int(width)
         self.count = 0
         self.start = time.perf_counter()
-        self._last = 0.0
-        self._drawn = False
+        stream = stream if stream is not None else sys.stderr
+        tty = bool(getattr(stream, "isatty", lambda: False)())
+        self._bar: Any = None
+        if not quiet and (tty or force):
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=self.total, desc=label, file=stream, delay=float(min_time), leave=False,
+                ascii=".#", mininterval=0.1, dynamic_ncols=False,
+                bar_format="{desc} [{bar:WIDTH}] {n_fmt}/{total_fmt} {elapsed_s:.1f} s".replace(
+                    "WIDTH", str(int(width))
+                ),
+            )  # fmt: skip
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the bar can appear."""
+        return self._bar is not None
 
     def update(self, n: int = 1, label: str | None = None) -> None:
         """Advance by ``n`` steps (and optionally change the label)."""
         self.count += int(n)
         if label is not None:
             self.label = label
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if now - self.start < self.min_time:
-            return
-        if self._drawn and now - self._last < 0.1 and self.count < self.total:
-            return
-        self._draw(now)
-
-    def _draw(self, now: float) -> None:
-        frac = min(self.count / self.total, 1.0) if self.total else 1.0
-        filled = round(frac * self.width)
-        bar = "#" * filled + "." * (self.width - filled)
-        text = f"\r{self.label} [{bar}] {self.count}/{self.total} {now - self.start:.1f} s"
-        self.stream.write(text)
-        self.stream.flush()
-        self._drawn = True
-        self._last = now
+        if self._bar is not None:
+            if label is not None:
+                self._bar.set_description_str(label, refresh=False)
+            self._bar.update(int(n))
+            if self.count >= self.total and self.elapsed >= self._bar.delay:
+                self._bar.refresh()  # the last step is always shown (tqdm may skip it)
 
     def close(self) -> None:
         """Clear the bar's line (if it was drawn)."""
-        if self._drawn:
-            self.stream.write("\r" + " " * (self.width + len(self.label) + 30) + "\r")
-            self.stream.flush()
-            self._drawn = False
+        if self._bar is not None:
+            self._bar.close()
 
     @property
     def elapsed(self) -> float:

@@ -422,132 +422,164 @@ def _known_issue(spec, kind: str) -> str | None:
 
 
 def _check_model(name: str, cfg: StressConfig, res: StageResult) -> None:
+    """Stress one model: values of every parameter set on adversarial direction pairs
+    (NaN, inf, negative, non-zero below the horizon, reciprocity), then energy (albedo
+    <= 1), both within the time budget; the counts split into known issues and unexpected."""
     from gonio import brdf
 
     spec = brdf.spec(name)
-    counts = dict.fromkeys(KINDS, 0)
-    info: dict[str, Any] = {
-        "parameter_sets": 0,
-        "rejected": 0,
-        "sets_skipped_for_time": 0,
-        "energy_sets": 0,
-        "energy_skipped_for_time": 0,
-        "energy_unresolved": 0,
-        "slowest_set_seconds": 0.0,
-    }
-    worst: dict[str, dict] = {}
-    g = np.random.default_rng(cfg.rng)
+    check = _ModelCheck(name, cfg, res)
     deadline = time.perf_counter() + cfg.model_seconds
-    sets = parameter_sets(name, cfg)
-    models = []
-    energy_wi = np.array([_vec(math.radians(t), 0.7) for t in ENERGY_THETA_DEG])
-    max_recip = 0.0
-    n_rand = cfg.n_random
-    # value checks: the defaults first, then the other sets while the time budget lasts
-    for k, (params, check_energy) in enumerate(sets):
-        if k > 0 and time.perf_counter() > deadline:
-            info["sets_skipped_for_time"] = len(sets) - k
-            break
-        t_set = time.perf_counter()
-        try:
-            model = brdf.create(name, **params)
-        except ValueError:
-            info["rejected"] += 1
-            continue
-        models.append((model, params, check_energy))
-        info["parameter_sets"] += 1
-        wi, wo = adversarial_pairs(n_rand, g)
-        for dtype in (np.float64, np.float32):
-            a = wi.astype(dtype)
-            b = wo.astype(dtype)
+    models = check.values(parameter_sets(name, cfg), deadline)
+    check.energy(spec, models, deadline + 0.5 * cfg.model_seconds)
+    check.classify(spec)
+
+
+class _ModelCheck:
+    """The counts, notes and worst cases of :func:`_check_model` for one model."""
+
+    def __init__(self, name: str, cfg: StressConfig, res: StageResult) -> None:
+        self.name, self.cfg, self.res = name, cfg, res
+        self.counts = dict.fromkeys(KINDS, 0)
+        self.info: dict[str, Any] = {
+            "parameter_sets": 0,
+            "rejected": 0,
+            "sets_skipped_for_time": 0,
+            "energy_sets": 0,
+            "energy_skipped_for_time": 0,
+            "energy_unresolved": 0,
+            "slowest_set_seconds": 0.0,
+        }
+        self.worst: dict[str, dict] = {}
+        self.max_recip = 0.0
+
+    def values(self, sets: list, deadline: float) -> list:
+        """Value checks: the defaults first, then the other sets while the time budget
+        lasts; returns the models made, with their parameters and energy flag."""
+        from gonio import brdf
+
+        cfg, info = self.cfg, self.info
+        g = np.random.default_rng(cfg.rng)
+        models = []
+        n_rand = cfg.n_random
+        for k, (params, check_energy) in enumerate(sets):
+            if k > 0 and time.perf_counter() > deadline:
+                info["sets_skipped_for_time"] = len(sets) - k
+                break
+            t_set = time.perf_counter()
             try:
-                v = _flat(model(a, b), len(a))
-                vs = _flat(model(b, a), len(a))
-            except Exception as exc:
-                counts["error"] += 1
-                _example(res, name, "error", params, repr(exc))
+                model = brdf.create(self.name, **params)
+            except ValueError:
+                info["rejected"] += 1
                 continue
-            res.cases += 2 * len(a)
-            fin = np.isfinite(v) & np.isfinite(vs)
-            c = {
-                "nan": int(np.count_nonzero(np.isnan(v).any(-1))),
-                "inf": int(np.count_nonzero(np.isinf(v).any(-1))),
-                "negative": int(np.count_nonzero((v < 0).any(-1))),
-            }
-            below = (a[:, 2].astype(np.float64) <= 0) | (b[:, 2].astype(np.float64) <= 0)
-            c["horizon"] = int(np.count_nonzero((v[below] != 0).any(-1)))
-            scale = np.maximum(np.abs(v), np.abs(vs))
-            diff = np.where(fin, np.abs(v - vs), 0.0)
-            bad_r = (diff > RECIPROCITY_RTOL * scale + 1e-300).any(-1)
-            rel = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
-            max_recip = max(max_recip, float(rel.max(initial=0.0)))
-            c["reciprocity"] = int(np.count_nonzero(bad_r))
-            for kind, n in c.items():
-                if n:
-                    counts[kind] += n
-                    _note_worst(worst, kind, params, a, b, v, vs, dtype)
-        dt = time.perf_counter() - t_set
-        info["slowest_set_seconds"] = round(max(info["slowest_set_seconds"], dt), 4)
-        if k == 0 and len(sets) > 1:
-            # trim the random pairs so that every set fits in half the budget
-            per_pair = dt / max(len(wi), 1)
-            room = 0.5 * cfg.model_seconds / (len(sets) * per_pair) - (len(wi) - n_rand)
-            n_rand = int(min(cfg.n_random, max(0.0, room)))
-    info["random_pairs_per_set"] = n_rand
-    # energy: at the default weights, shape parameters swept, while the budget lasts
-    todo = [(m, p) for m, p, e in models if e] if cfg.energy else []
-    use_analytic = spec.analytic_albedo and cfg.analytic_albedo
-    for k, (model, params) in enumerate(todo):
-        if k > 0 and time.perf_counter() > deadline + 0.5 * cfg.model_seconds:
-            info["energy_skipped_for_time"] = len(todo) - k
-            break
+            models.append((model, params, check_energy))
+            info["parameter_sets"] += 1
+            wi, wo = adversarial_pairs(n_rand, g)
+            for dtype in (np.float64, np.float32):
+                self._pairs(model, params, wi.astype(dtype), wo.astype(dtype), dtype)
+            dt = time.perf_counter() - t_set
+            info["slowest_set_seconds"] = round(max(info["slowest_set_seconds"], dt), 4)
+            if k == 0 and len(sets) > 1:
+                # trim the random pairs so that every set fits in half the budget
+                per_pair = dt / max(len(wi), 1)
+                room = 0.5 * cfg.model_seconds / (len(sets) * per_pair) - (len(wi) - n_rand)
+                n_rand = int(min(cfg.n_random, max(0.0, room)))
+        info["random_pairs_per_set"] = n_rand
+        return models
+
+    def _pairs(self, model: Any, params: dict, a: np.ndarray, b: np.ndarray, dtype: Any) -> None:
+        """One model on the pairs ``(a, b)`` and ``(b, a)``: counts of each kind of failure."""
+        counts, res = self.counts, self.res
         try:
-            t_alb = time.perf_counter()
-            alb, ok = _albedo_estimate(
-                model, energy_wi, cfg.energy_nodes, use_analytic, 0.05 * cfg.model_seconds
-            )
-            if use_analytic and time.perf_counter() - t_alb > 0.05 * cfg.model_seconds:
-                use_analytic = False  # the model's own albedo is slow: use the quadrature
-                info["albedo"] = "quadrature (model's analytic albedo too slow)"
+            v = _flat(model(a, b), len(a))
+            vs = _flat(model(b, a), len(a))
         except Exception as exc:
             counts["error"] += 1
-            _example(res, name, "error", params, f"albedo: {exc!r}")
-            continue
-        info["energy_sets"] += 1
-        res.cases += len(energy_wi)
-        nonfinite = ok & ~np.isfinite(alb)
-        if nonfinite.any():
-            counts["nan"] += int(np.count_nonzero(nonfinite))
-            _example(res, name, "nan", params, f"albedo {alb.tolist()} at {ENERGY_THETA_DEG}")
-            ok &= np.isfinite(alb)
-        info["energy_unresolved"] += int(np.count_nonzero(~ok))
-        over = ok & (alb > 1.0 + ENERGY_TOL)
-        if over.any():
-            counts["energy"] += int(np.count_nonzero(over))
-            i = int(np.argmax(np.where(over, alb, -np.inf)))
-            w = worst.get("energy")
-            if w is None or alb[i] > w["albedo"]:
-                worst["energy"] = {
-                    "params": _short_params(params),
-                    "theta_i_deg": ENERGY_THETA_DEG[i],
-                    "albedo": float(alb[i]),
-                }
-    res.counts[name] = dict(counts)
-    res.info[name] = {**info, "max_reciprocity_rel": max_recip}
-    for kind in KINDS:
-        n = counts[kind]
-        if not n:
-            continue
-        issue = _known_issue(spec, kind)
-        if issue is not None:
-            entry = {"model": name, "kind": kind, "count": n, "issue": issue}
-            if kind in worst:
-                entry["worst"] = worst[kind]
-            res.known.append(entry)
-        else:
-            res.unexpected += n
-            if kind in worst:
-                _example(res, name, kind, worst[kind].get("params", {}), worst[kind])
+            _example(res, self.name, "error", params, repr(exc))
+            return
+        res.cases += 2 * len(a)
+        fin = np.isfinite(v) & np.isfinite(vs)
+        c = {
+            "nan": int(np.count_nonzero(np.isnan(v).any(-1))),
+            "inf": int(np.count_nonzero(np.isinf(v).any(-1))),
+            "negative": int(np.count_nonzero((v < 0).any(-1))),
+        }
+        below = (a[:, 2].astype(np.float64) <= 0) | (b[:, 2].astype(np.float64) <= 0)
+        c["horizon"] = int(np.count_nonzero((v[below] != 0).any(-1)))
+        scale = np.maximum(np.abs(v), np.abs(vs))
+        diff = np.where(fin, np.abs(v - vs), 0.0)
+        bad_r = (diff > RECIPROCITY_RTOL * scale + 1e-300).any(-1)
+        rel = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
+        self.max_recip = max(self.max_recip, float(rel.max(initial=0.0)))
+        c["reciprocity"] = int(np.count_nonzero(bad_r))
+        for kind, n in c.items():
+            if n:
+                counts[kind] += n
+                _note_worst(self.worst, kind, params, a, b, v, vs, dtype)
+
+    def energy(self, spec: Any, models: list, deadline: float) -> None:
+        """Albedo <= 1 at the default weights, shape parameters swept, while time lasts."""
+        cfg, info, counts, res, worst = self.cfg, self.info, self.counts, self.res, self.worst
+        energy_wi = np.array([_vec(math.radians(t), 0.7) for t in ENERGY_THETA_DEG])
+        todo = [(m, p) for m, p, e in models if e] if cfg.energy else []
+        use_analytic = spec.analytic_albedo and cfg.analytic_albedo
+        for k, (model, params) in enumerate(todo):
+            if k > 0 and time.perf_counter() > deadline:
+                info["energy_skipped_for_time"] = len(todo) - k
+                break
+            try:
+                t_alb = time.perf_counter()
+                alb, ok = _albedo_estimate(
+                    model, energy_wi, cfg.energy_nodes, use_analytic, 0.05 * cfg.model_seconds
+                )
+                if use_analytic and time.perf_counter() - t_alb > 0.05 * cfg.model_seconds:
+                    use_analytic = False  # the model's own albedo is slow: use the quadrature
+                    info["albedo"] = "quadrature (model's analytic albedo too slow)"
+            except Exception as exc:
+                counts["error"] += 1
+                _example(res, self.name, "error", params, f"albedo: {exc!r}")
+                continue
+            info["energy_sets"] += 1
+            res.cases += len(energy_wi)
+            nonfinite = ok & ~np.isfinite(alb)
+            if nonfinite.any():
+                counts["nan"] += int(np.count_nonzero(nonfinite))
+                _example(res, self.name, "nan", params,
+                         f"albedo {alb.tolist()} at {ENERGY_THETA_DEG}")  # fmt: skip
+                ok &= np.isfinite(alb)
+            info["energy_unresolved"] += int(np.count_nonzero(~ok))
+            over = ok & (alb > 1.0 + ENERGY_TOL)
+            if over.any():
+                counts["energy"] += int(np.count_nonzero(over))
+                i = int(np.argmax(np.where(over, alb, -np.inf)))
+                w = worst.get("energy")
+                if w is None or alb[i] > w["albedo"]:
+                    worst["energy"] = {
+                        "params": _short_params(params),
+                        "theta_i_deg": ENERGY_THETA_DEG[i],
+                        "albedo": float(alb[i]),
+                    }
+
+    def classify(self, spec: Any) -> None:
+        """Record the counts; a kind the model documents as a known issue is listed as known,
+        any other counts as unexpected (with its worst example)."""
+        name, res, counts, worst = self.name, self.res, self.counts, self.worst
+        res.counts[name] = dict(counts)
+        res.info[name] = {**self.info, "max_reciprocity_rel": self.max_recip}
+        for kind in KINDS:
+            n = counts[kind]
+            if not n:
+                continue
+            issue = _known_issue(spec, kind)
+            if issue is not None:
+                entry = {"model": name, "kind": kind, "count": n, "issue": issue}
+                if kind in worst:
+                    entry["worst"] = worst[kind]
+                res.known.append(entry)
+            else:
+                res.unexpected += n
+                if kind in worst:
+                    _example(res, name, kind, worst[kind].get("params", {}), worst[kind])
 
 
 def _note_worst(worst, kind, params, a, b, v, vs, dtype) -> None:

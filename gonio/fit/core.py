@@ -895,81 +895,124 @@ def fit(
         free parameters, or a model returning non-finite values.
     """
     t0 = time.perf_counter()
-    data = _prepare(samples)
-    template = parse_model(model)
-    rng = np.random.default_rng(rng)
-    res = _Residual(residual, data)
+    p = _Problem(samples, model, residual, fixed=fixed, free=free, init=init,
+                 per_band=per_band, guess=guess)  # fmt: skip
+    starts = p.starts(n_starts, np.random.default_rng(rng))
+    budget = max_nfev or 100 * (len(p.free_idx) + 1)
+    p.fun_checked(p.x0)  # a model that cannot be evaluated at the start raises a clear error
+    vp = p.varpro(linear)
+    best, nfev = _minimise(p, starts, vp, budget)
+    return _result(p, best, vp, nfev, len(starts), absolute_sigma, t0)
 
-    start = _guess(template, samples, data) if guess else template
-    layout = _make_layout(start, data, per_band)
-    entries = list(layout.entries)
-    names = [e[0] for e in entries]
-    index = {n: i for i, n in enumerate(names)}
 
-    def _expand(key: str) -> list[int]:
-        if key in index:
-            return [index[key]]
-        hits = [i for i, n in enumerate(names) if _base_name(n) == key]
+class _Problem:
+    """One fit's problem: the data, the parameter layout, the free and fixed parameters with
+    their start values and bounds, and the residual functions of the free parameters."""
+
+    def __init__(
+        self, samples: BRDFSamples, model: str | BRDF, residual: str, *, fixed: Any,
+        free: Iterable[str] | None, init: Mapping[str, float] | None,
+        per_band: Sequence[str] | None, guess: bool,
+    ) -> None:  # fmt: skip
+        self.samples = samples
+        self.residual = residual
+        self.per_band = per_band
+        self.data = data = _prepare(samples)
+        self.template = parse_model(model)
+        self.res = _Residual(residual, data)
+        self.start = _guess(self.template, samples, data) if guess else self.template
+        self.layout = _make_layout(self.start, data, per_band)
+        self.entries = list(self.layout.entries)
+        self.names = [e[0] for e in self.entries]
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.values = np.array([e[1] for e in self.entries], dtype=np.float64)
+        for key, v in (init or {}).items():  # start values: init overrides, then fixed
+            for i in self.expand(key):
+                self.values[i] = _as_float(v, key)
+        self.fixed_idx = self._fixed(fixed, free)
+        self.lo = np.array([e[2] for e in self.entries])
+        self.hi = np.array([e[3] for e in self.entries])
+        self._inside_bounds()
+        self.free_idx = [i for i in range(len(self.entries)) if i not in self.fixed_idx]
+        self.n_used = int(self.res.mask.sum())
+        if not self.free_idx:
+            raise ValueError("every parameter is fixed; nothing to fit")
+        if self.n_used <= len(self.free_idx):
+            raise ValueError(
+                f"samples has {self.n_used} usable rows for {len(self.free_idx)} free "
+                "parameters; expected more rows than free parameters"
+            )
+        self.fun_checked, self.fun = self.objective(data, self.res)
+        self.x0 = self.values[self.free_idx]
+        self.lb, self.ub = self.lo[self.free_idx], self.hi[self.free_idx]
+        # fixed variable scales from the start's magnitudes: x_scale="jac" rescales every
+        # iteration and crawled along Lafortune's c-n valley (536 vs 100 evaluations)
+        span = np.where(np.isfinite(self.ub - self.lb), self.ub - self.lb, np.inf)
+        xscale = np.maximum(np.abs(self.x0), np.minimum(1e-2 * span, 1.0))
+        self.xscale = np.where(xscale > 0, xscale, 1.0)
+
+    def expand(self, key: str) -> list[int]:
+        """Indices of a flat parameter name, or of every element of a base name."""
+        if key in self.index:
+            return [self.index[key]]
+        hits = [i for i, n in enumerate(self.names) if _base_name(n) == key]
         if not hits:
             raise ValueError(
-                f"unknown parameter {key!r} for model {_label(template)!r}; expected one of {names}"
+                f"unknown parameter {key!r} for model {_label(self.template)!r}; "
+                f"expected one of {self.names}"
             )
         return hits
 
-    # start values: init overrides, then fixed values
-    values = np.array([e[1] for e in entries], dtype=np.float64)
-    for key, v in (init or {}).items():
-        for i in _expand(key):
-            values[i] = _as_float(v, key)
-    fixed_idx: set[int] = set()
-    released = {i for key in (free or ()) for i in _expand(key)}
-    for pre, comp in _components(template):
-        for key in DEFAULT_FIXED.get(comp.name, ()) + _ALWAYS_FIXED:
-            full = f"{pre}.{key}" if pre else key
-            hits = [i for i, n in enumerate(names) if _base_name(n) == full]
-            fixed_idx.update(i for i in hits if i not in released)
-    if fixed is not None:
-        if isinstance(fixed, str):
-            raise ValueError(f"fixed must be a list of names or a mapping, got string {fixed!r}")
-        items = fixed.items() if isinstance(fixed, Mapping) else ((k, None) for k in fixed)
-        for key, v in items:
-            for i in _expand(key):
-                fixed_idx.add(i)
-                if v is not None:
-                    values[i] = _as_float(v, key)
-    lo = np.array([e[2] for e in entries])
-    hi = np.array([e[3] for e in entries])
-    for i in range(len(entries)):
-        if i in fixed_idx:
-            continue
-        # keep the start strictly inside finite bounds (TRF needs interior points)
-        span = hi[i] - lo[i] if math.isfinite(hi[i] - lo[i]) else max(abs(values[i]), 1.0)
-        pad = 1e-6 * span
-        values[i] = min(max(values[i], lo[i] + pad), hi[i] - pad)
-    free_idx = [i for i in range(len(entries)) if i not in fixed_idx]
-    n_used = int(res.mask.sum())
-    if not free_idx:
-        raise ValueError("every parameter is fixed; nothing to fit")
-    if n_used <= len(free_idx):
-        raise ValueError(
-            f"samples has {n_used} usable rows for {len(free_idx)} free parameters; "
-            "expected more rows than free parameters"
-        )
+    def _fixed(self, fixed: Any, free: Iterable[str] | None) -> set[int]:
+        """The held parameters: the models' defaults (unless released by ``free``) and
+        ``fixed`` (names, or a mapping to the values they are held at)."""
+        names = self.names
+        fixed_idx: set[int] = set()
+        released = {i for key in (free or ()) for i in self.expand(key)}
+        for pre, comp in _components(self.template):
+            for key in DEFAULT_FIXED.get(comp.name, ()) + _ALWAYS_FIXED:
+                full = f"{pre}.{key}" if pre else key
+                hits = [i for i, n in enumerate(names) if _base_name(n) == full]
+                fixed_idx.update(i for i in hits if i not in released)
+        if fixed is not None:
+            if isinstance(fixed, str):
+                raise ValueError(
+                    f"fixed must be a list of names or a mapping, got string {fixed!r}"
+                )
+            items = fixed.items() if isinstance(fixed, Mapping) else ((k, None) for k in fixed)
+            for key, v in items:
+                for i in self.expand(key):
+                    fixed_idx.add(i)
+                    if v is not None:
+                        self.values[i] = _as_float(v, key)
+        return fixed_idx
 
-    def vals_of(x: NDArray) -> dict[str, float]:
-        v = values.copy()
-        v[free_idx] = x
-        return dict(zip(names, v.tolist()))
+    def _inside_bounds(self) -> None:
+        """Keep every free start strictly inside finite bounds (TRF needs interior points)."""
+        lo, hi, values = self.lo, self.hi, self.values
+        for i in range(len(self.entries)):
+            if i in self.fixed_idx:
+                continue
+            span = hi[i] - lo[i] if math.isfinite(hi[i] - lo[i]) else max(abs(values[i]), 1.0)
+            pad = 1e-6 * span
+            values[i] = min(max(values[i], lo[i] + pad), hi[i] - pad)
 
-    def objective(d: _Data, r: _Residual) -> tuple[Callable, Callable]:
+    def vals_of(self, x: NDArray) -> dict[str, float]:
+        """Every parameter's value (flat names) with the free ones from ``x``."""
+        v = self.values.copy()
+        v[self.free_idx] = x
+        return dict(zip(self.names, v.tolist()))
+
+    def objective(self, d: _Data, r: _Residual) -> tuple[Callable, Callable]:
+        """The residual vector of the free parameters on data ``d``: one that raises for an
+        invalid model, and the optimiser's, which gives an invalid trial an infinite misfit
+        (so that TRF shrinks its trust region instead of stopping)."""
         n = int(r.mask.sum())
 
         def checked(x: NDArray) -> NDArray:
-            return r(_predict_layout(layout, d, vals_of(x)))
+            return r(_predict_layout(self.layout, d, self.vals_of(x)))
 
         def safe(x: NDArray) -> NDArray:
-            # inside the optimiser a trial step whose model is invalid or overflows gets an
-            # infinite misfit, so that TRF shrinks its trust region instead of stopping
             try:
                 return checked(x)
             except (ValueError, FloatingPointError, ZeroDivisionError):
@@ -977,110 +1020,128 @@ def fit(
 
         return checked, safe
 
-    fun_checked, fun = objective(data, res)
+    def starts(self, n_starts: int | None, rng: np.random.Generator) -> list[NDArray]:
+        """The start, and ``n_starts`` random starts within the bounds (model-specific ones,
+        physically sensible lobes, where the model has a starter)."""
+        if n_starts is None:
+            n_starts = max(
+                (DEFAULT_STARTS.get(m.name, 0) for _, m in _components(self.template)), default=0
+            )
+        if n_starts < 0:
+            raise ValueError(f"n_starts must be >= 0, got {n_starts}")
+        starts = [self.x0]
+        for k in range(n_starts):
+            xs = _random_start(self.entries, self.free_idx, self.x0, rng)
+            comps = _components(self.start)
+            if any(m.name in _STARTERS for _, m in comps) and self.layout.n_groups == 1:
+                new = []
+                for _, m in comps:
+                    st = _STARTERS.get(m.name)
+                    new.append(type(m)(**st(m.params, rng, k)) if st else m)
+                rebuilt = new[0] if len(new) == 1 else Sum(new)
+                entries = _make_layout(rebuilt, self.data, self.per_band).entries
+                vals = {e[0]: e[1] for e in entries}
+                xs = np.array([vals.get(self.names[i], self.values[i]) for i in self.free_idx])
+                xs = np.clip(xs, self.lb, self.ub)
+            starts.append(xs)
+        return starts
 
-    x0 = values[free_idx]
-    lb, ub = lo[free_idx], hi[free_idx]
-    if n_starts is None:
-        n_starts = max((DEFAULT_STARTS.get(m.name, 0) for _, m in _components(template)), default=0)
-    if n_starts < 0:
-        raise ValueError(f"n_starts must be >= 0, got {n_starts}")
-    starts = [x0]
-    for k in range(n_starts):
-        xs = _random_start(entries, free_idx, x0, rng)
-        comps = _components(start)
-        if any(m.name in _STARTERS for _, m in comps) and layout.n_groups == 1:
-            # a model-specific random start (physically sensible lobes) where one exists
-            new = []
-            for _, m in comps:
-                st = _STARTERS.get(m.name)
-                new.append(type(m)(**st(m.params, rng, k)) if st else m)
-            rebuilt = new[0] if len(new) == 1 else Sum(new)
-            vals = {e[0]: e[1] for e in _make_layout(rebuilt, data, per_band).entries}
-            xs = np.array([vals.get(names[i], values[i]) for i in free_idx])
-            xs = np.clip(xs, lb, ub)
-        starts.append(xs)
-    budget = max_nfev or 100 * (len(free_idx) + 1)
-
-    fun_checked(x0)  # a model that cannot be evaluated at the start raises a clear error
-    vp = None
-    if linear is not None:
+    def varpro(self, linear: Iterable[str] | None) -> _VarPro | None:
+        """Variable projection over the ``linear`` free parameters (checked to be linear)."""
+        if linear is None:
+            return None
         if isinstance(linear, str):
             raise ValueError(f"linear must be a list of names, got string {linear!r}")
-        lin_set = {i for key in linear for i in _expand(key)}
-        lin_free = [j for j, i in enumerate(free_idx) if i in lin_set]
-        if lin_free:
-            if residual == "log":
-                raise ValueError(
-                    "linear= needs a residual linear in the model value; "
-                    "residual 'log' is not (use 'absolute', 'relative' or 'li_torrance')"
-                )
-            vp = _VarPro(layout, data, res, values, free_idx, lin_free, names, lb, ub)
-            vp.check_linear(x0)
+        lin_set = {i for key in linear for i in self.expand(key)}
+        lin_free = [j for j, i in enumerate(self.free_idx) if i in lin_set]
+        if not lin_free:
+            return None
+        if self.residual == "log":
+            raise ValueError(
+                "linear= needs a residual linear in the model value; "
+                "residual 'log' is not (use 'absolute', 'relative' or 'li_torrance')"
+            )
+        vp = _VarPro(self.layout, self.data, self.res, self.values, self.free_idx, lin_free,
+                     self.names, self.lb, self.ub)  # fmt: skip
+        vp.check_linear(self.x0)
+        return vp
 
-    # fixed variable scales from the start's magnitudes: x_scale="jac" rescales every
-    # iteration and crawled along Lafortune's c-n valley (536 vs 100 evaluations)
-    span = np.where(np.isfinite(ub - lb), ub - lb, np.inf)
-    xscale = np.maximum(np.abs(x0), np.minimum(1e-2 * span, 1.0))
-    xscale = np.where(xscale > 0, xscale, 1.0)
+    def solve(self, f: Callable, xs: NDArray, nfev_max: int, tol: float) -> Any:
+        """One bounded trust-region run (``scipy.optimize.least_squares``, method TRF)."""
+        from scipy.optimize import least_squares  # imported here: ~0.5 s, only fits need it
 
-    from scipy.optimize import least_squares  # imported here: ~0.5 s, only fits need it
-
-    def solve(f: Callable, xs: NDArray, nfev_max: int, tol: float):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             return least_squares(
-                f, xs, bounds=(lb, ub), method="trf", x_scale=xscale, max_nfev=nfev_max,
-                xtol=tol, ftol=tol, gtol=tol,
+                f, xs, bounds=(self.lb, self.ub), method="trf", x_scale=self.xscale,
+                max_nfev=nfev_max, xtol=tol, ftol=tol, gtol=tol,
             )  # fmt: skip
 
-    # multi-start: screen every start with a short run (on a fixed random subset of at most
-    # SCREEN_ROWS rows of large tables), then polish the best one on all the data
-    screen = len(starts) > 1 and vp is None
-    screen_fun = fun
-    if screen and len(data.y) > SCREEN_ROWS:
+    def screen_objective(self) -> Callable:
+        """The optimiser's residual on a fixed random subset of at most :data:`SCREEN_ROWS`
+        rows (the whole table when it is smaller), for screening many starts cheaply."""
+        data = self.data
+        if len(data.y) <= SCREEN_ROWS:
+            return self.fun
         pick = np.sort(np.random.default_rng(0).choice(len(data.y), SCREEN_ROWS, replace=False))
-        sub = samples.subset(pick)
-        sub_data = _prepare(sub)
+        sub_data = _prepare(self.samples.subset(pick))
         # band indices refer to the full table's bands (the layout's)
         sub_data.band = None if data.band is None else data.band[pick]
         sub_data.wavelengths = data.wavelengths
-        _, screen_fun = objective(sub_data, _Residual(residual, sub_data))
+        return self.objective(sub_data, _Residual(self.residual, sub_data))[1]
+
+
+def _minimise(
+    p: _Problem, starts: list[NDArray], vp: _VarPro | None, budget: int
+) -> tuple[Any, int]:
+    """The best solution over the starts, and the evaluations it took.
+
+    Multi-start: every start is screened with a short run (on a subset of large tables),
+    then the best one is polished on all the data. With variable projection every start is
+    solved to the end.
+    """
+    screen = len(starts) > 1 and vp is None
+    screen_fun = p.screen_objective() if screen else p.fun
+    n_free = len(p.free_idx)
     best = None
     nfev = 0
     for xs in starts:
         if vp is not None:
-            sol = vp.solve(xs, xscale, budget)
-            nfev += sol.nfev
-            if best is None or sol.cost < best.cost:
-                best = sol
-            continue
-        try:
-            sol = solve(
-                screen_fun, xs, min(budget, 15 * (len(free_idx) + 1)) if screen else budget,
-                1e-6 if screen else 1e-10,
-            )  # fmt: skip
-        except ValueError:  # a random start where the model cannot be evaluated
-            continue
+            sol = vp.solve(xs, p.xscale, budget)
+        else:
+            try:
+                sol = p.solve(
+                    screen_fun, xs, min(budget, 15 * (n_free + 1)) if screen else budget,
+                    1e-6 if screen else 1e-10,
+                )  # fmt: skip
+            except ValueError:  # a random start where the model cannot be evaluated
+                continue
         nfev += sol.nfev
         if best is None or sol.cost < best.cost:
             best = sol
     if best is None:
-        raise ValueError(f"no start of the fit of {_label(template)!r} could be evaluated")
+        raise ValueError(f"no start of the fit of {_label(p.template)!r} could be evaluated")
     if screen:
-        if screen_fun is not fun:  # converge on the subset (cheap), then polish on all rows
-            sub_best = solve(screen_fun, best.x, budget, 1e-10)
-            nfev += sub_best.nfev
-            best = sub_best
-        best = solve(fun, best.x, budget, 1e-10)
+        if screen_fun is not p.fun:  # converge on the subset (cheap), then polish on all rows
+            best = p.solve(screen_fun, best.x, budget, 1e-10)
+            nfev += best.nfev
+        best = p.solve(p.fun, best.x, budget, 1e-10)
         nfev += best.nfev
+    return best, nfev
 
+
+def _result(
+    p: _Problem, best: Any, vp: _VarPro | None, nfev: int, n_starts: int,
+    absolute_sigma: bool | None, t0: float,
+) -> FitResult:  # fmt: skip
+    """The :class:`FitResult` of the best solution: χ², covariance, standard errors, rms."""
+    data, names, free_idx = p.data, p.names, p.free_idx
     x = best.x
     r = best.fun
     chi2 = float(r @ r)
-    dof = n_used - len(free_idx)
+    dof = p.n_used - len(free_idx)
     chi2_dof = chi2 / dof if dof > 0 else math.inf
-    J = _jacobian(fun_checked, x, lb, ub, r) if vp is None else vp.jacobian(x, r)
+    J = _jacobian(p.fun_checked, x, p.lb, p.ub, r) if vp is None else vp.jacobian(x, r)
     cov, rank_ok, free_inf = _covariance(J)
     cov_scale = 1.0
     if dof > 0 and math.isfinite(chi2_dof):
@@ -1089,15 +1150,12 @@ def fit(
         elif not absolute_sigma:
             cov_scale = chi2_dof
     cov = cov * cov_scale
-    final = vals_of(x)
-    models = layout.models(final)
-    f = _predict_layout(layout, data, final)
-    m = res.mask
+    final = p.vals_of(x)
+    models = p.layout.models(final)
+    f = _predict_layout(p.layout, data, final)
+    m = p.res.mask
     diff = f[m] - data.y[m]
-    rms = _rms(diff)
     pos = data.y[m] > 0
-    rms_rel = _rms(diff[pos] / data.y[m][pos]) if pos.any() else math.nan
-
     stderr = dict.fromkeys(names, 0.0)
     for j, i in enumerate(free_idx):
         stderr[names[i]] = math.inf if free_inf[j] else float(math.sqrt(max(cov[j, j], 0.0)))
@@ -1105,34 +1163,34 @@ def fit(
         names[i]
         for j, i in enumerate(free_idx)
         if any(
-            math.isfinite(b) and abs(x[j] - b) <= 1e-9 * max(1.0, abs(b)) for b in (lb[j], ub[j])
+            math.isfinite(b) and abs(x[j] - b) <= 1e-9 * max(1.0, abs(b))
+            for b in (p.lb[j], p.ub[j])
         )
     ]
     if not np.isfinite(x).all():  # cannot happen with TRF, but never hand back NaN silently
-        raise ValueError(f"fit of {_label(template)!r} produced non-finite parameters {final}")
-    converged = bool(best.status > 0 and np.isfinite(chi2))
+        raise ValueError(f"fit of {_label(p.template)!r} produced non-finite parameters {final}")
     return FitResult(
         model=models[0],
         models=models,
-        model_name=_label(template),
-        residual=residual,
+        model_name=_label(p.template),
+        residual=p.residual,
         params=final,
         stderr=stderr,
         free=[names[i] for i in free_idx],
-        fixed=[names[i] for i in sorted(fixed_idx)],
-        bounds={n: (float(lo[i]), float(hi[i])) for i, n in enumerate(names)},
-        converged=converged,
+        fixed=[names[i] for i in sorted(p.fixed_idx)],
+        bounds={n: (float(p.lo[i]), float(p.hi[i])) for i, n in enumerate(names)},
+        converged=bool(best.status > 0 and np.isfinite(chi2)),
         identifiable=rank_ok,
         message=str(best.message) + _chi2_note(chi2_dof, data.sigma is not None),
-        rms=rms,
-        rms_relative=rms_rel,
+        rms=_rms(diff),
+        rms_relative=_rms(diff[pos] / data.y[m][pos]) if pos.any() else math.nan,
         chi2=chi2,
         dof=dof,
         chi2_dof=chi2_dof,
-        n_samples=n_used,
-        n_excluded=int((~res.mask).sum()),
+        n_samples=p.n_used,
+        n_excluded=int((~p.res.mask).sum()),
         nfev=nfev,
-        n_starts=len(starts),
+        n_starts=n_starts,
         absolute_sigma=absolute_sigma is True
         or (absolute_sigma is None and data.sigma is not None and cov_scale == 1.0),
         cov_scale=cov_scale,

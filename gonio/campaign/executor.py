@@ -1,0 +1,268 @@
+"""How a campaign runs: the one place for its concurrency, thread limits and stage timings.
+
+Every campaign (LBL, Cornell, through the drivers) is a short pipeline of named stages —
+prepare, capture and reduce, fit, report — that reads top to bottom; *how* those stages use
+the machine lives here, not in the stages:
+
+* **BLAS on one thread** for the whole campaign (numpy's and scipy's OpenBLAS, restored on
+  exit). Its processes already fill the cores, and an OpenBLAS thread spins for a while after
+  each call: with the default two threads per process the default LBL campaign took 2.8 s
+  and 4.3 s of CPU on a 2-core machine, with one 2.3 s and 2.9 s. One thread also makes every
+  sum, so every result, the same in every process (:class:`~gonio.campaign.blas.SingleThreadBLAS`).
+* **A forked worker pool** (:meth:`CampaignExecutor.map`): tasks run in processes forked from
+  the campaign, which inherit its imported modules and the instrument with its cached
+  geometry (``state``); with one worker they run in this process, in order.
+* **Write-behind** (:func:`write_behind`): raw frames are written on a background thread of
+  whichever process captured them (OpenCV encodes without the GIL), so saving overlaps the
+  next captures; a task's writes are finished before its result is reported.
+* **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
+  fit (the samples table, the flush of the raw frames to the disk).
+* **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
+  forked first so that it loads matplotlib on the idle core while the campaign prepares.
+* **Stage timings** (:meth:`CampaignExecutor.stage`): seconds per named stage, reported in
+  the summary.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any
+
+__all__ = ["CampaignExecutor", "drain_writes", "worker_state", "write_behind"]
+
+#: What a pool process inherits from the campaign (fork), and what in-process tasks see.
+_STATE: dict[str, Any] = {}
+
+#: This process's write-behind thread (made on first use, so never before a fork).
+_WRITER: dict[str, Any] = {}
+
+
+def worker_state() -> dict[str, Any]:
+    """The ``state`` given to :meth:`CampaignExecutor.map`, in a pool process or this one."""
+    return _STATE
+
+
+def write_behind(fn: Callable[..., None], *args: Any) -> None:
+    """Run ``fn(*args)`` on this process's background writer thread (in submission order).
+
+    :func:`drain_writes` waits for them and re-raises the first error; the executor drains a
+    task's writes before it reports the task's result.
+    """
+    w = _WRITER.get("pool")
+    if w is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        w = _WRITER["pool"] = ThreadPoolExecutor(1, thread_name_prefix="gonio-writer")
+        _WRITER["futures"] = []
+        _WRITER["busy"] = 0.0
+
+    def timed() -> None:
+        t = time.perf_counter()
+        try:
+            fn(*args)
+        finally:
+            _WRITER["busy"] += time.perf_counter() - t
+
+    _WRITER["futures"].append(w.submit(timed))
+
+
+def drain_writes() -> float:
+    """Wait for every :func:`write_behind` job of this process; return the seconds the writer
+    was busy, and stop its thread (the next :func:`write_behind` starts another)."""
+    pool = _WRITER.pop("pool", None)
+    if pool is None:
+        return 0.0
+    futures, busy = _WRITER.pop("futures"), _WRITER.pop("busy")
+    try:
+        for f in futures:
+            f.result()
+    finally:
+        pool.shutdown(wait=True)
+    return busy + 0.0
+
+
+def _init_worker(state: dict[str, Any]) -> None:
+    _STATE.clear()
+    _STATE.update(state)
+
+
+def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
+    """A task in a pool process: its result once its writes are on their way to the disk."""
+    try:
+        res = fn(*args)
+    finally:
+        busy = drain_writes()
+    return res, busy
+
+
+class CampaignExecutor:
+    """The machine side of a campaign: BLAS limit, worker pool, I/O thread, plot process.
+
+    Parameters
+    ----------
+    workers : int
+        Processes for :meth:`map` (1: tasks run in this process, in order; more need the
+        ``fork`` start method).
+    plots : bool
+        Start a plot process (only with ``workers > 1``; otherwise :meth:`plot` draws here,
+        which costs no process start for a short campaign).
+
+    Notes
+    -----
+    Use it as a context manager; leaving it (normally or by an exception) stops the pool,
+    the I/O thread and the plot process and restores the BLAS thread limits.
+    ``timings`` holds the seconds of every :meth:`stage`.
+    """
+
+    def __init__(self, workers: int = 1, *, plots: bool = False) -> None:
+        if not isinstance(workers, int) or workers < 1:
+            raise ValueError(f"workers {workers!r}: expected a positive integer")
+        self.workers = workers
+        self.want_plots = plots
+        self.timings: dict[str, float] = {}
+        self.write_busy_s = 0.0
+        self.t_start = time.perf_counter()
+        self._stack = contextlib.ExitStack()
+        self._pool: Any = None
+        self._plotter: Any = None
+        self._io: Any = None
+
+    # ------------------------------------------------------------------ lifetime
+    def __enter__(self) -> CampaignExecutor:
+        from threadpoolctl import threadpool_limits
+
+        stack = self._stack.__enter__()
+        # numpy's BLAS (pool processes inherit it); scipy's own OpenBLAS is limited when
+        # it is loaded, by SingleThreadBLAS around the fit (see background()/blas())
+        stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
+        if self.want_plots and self.workers > 1:
+            from gonio.campaign.plot_worker import PlotWorker, warm_matplotlib
+
+            # forked first: it loads matplotlib while this process prepares the instrument
+            self._plotter = PlotWorker(warm_matplotlib)
+            stack.callback(self._plotter.close)
+        stack.callback(self._close_pool, cancel=True)
+        stack.callback(self._close_io)
+        return self
+
+    def __exit__(self, *exc: Any) -> bool | None:
+        return self._stack.__exit__(*exc)
+
+    # ------------------------------------------------------------------ timings
+    @contextlib.contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        """Time the enclosed block as ``timings[name]`` (seconds, added up if repeated)."""
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t
+
+    def elapsed(self) -> float:
+        """Seconds since the executor was made."""
+        return time.perf_counter() - self.t_start
+
+    # ------------------------------------------------------------------ pool
+    def map(
+        self,
+        fn: Callable[..., Any],
+        calls: Sequence[tuple],
+        *,
+        state: dict[str, Any],
+        prepare: Callable[[], None] | None = None,
+    ) -> Iterator[tuple[int, Any]]:
+        """``fn(*calls[k])`` for every ``k``; yields ``(k, result)``.
+
+        With one worker in this process, in order; with more, in a pool forked from this
+        process (after ``prepare()``, e.g. tracing the geometry and loading the kernels once,
+        so every worker inherits them), in completion order. ``fn`` reads ``state`` through
+        :func:`worker_state`. The seconds the tasks' write-behind threads were busy add up
+        in :attr:`write_busy_s`.
+        """
+        if self.workers == 1 or len(calls) <= 1:
+            _init_worker(state)
+            try:
+                for k, args in enumerate(calls):
+                    yield k, fn(*args)
+            finally:  # finish what was captured, also on an error
+                self.write_busy_s += drain_writes()
+            return
+        from concurrent.futures import as_completed
+
+        pool = self._start_pool(state, prepare)
+        futs = {pool.submit(_pool_task, fn, args): k for k, args in enumerate(calls)}
+        import scipy.optimize  # noqa: F401  (loads here while the workers capture)
+
+        for f in as_completed(futs):
+            res, busy = f.result()
+            self.write_busy_s += busy
+            yield futs[f], res
+        self._close_pool()
+
+    def _start_pool(self, state: dict[str, Any], prepare: Callable[[], None] | None) -> Any:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        if prepare is not None:
+            prepare()
+        # with the fork start method the initializer's arguments are inherited, not pickled
+        self._pool = ProcessPoolExecutor(
+            self.workers, mp_context=mp.get_context("fork"), initializer=_init_worker,
+            initargs=(state,),
+        )  # fmt: skip
+        return self._pool
+
+    def _close_pool(self, cancel: bool = False) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=cancel)
+            self._pool = None
+
+    # ------------------------------------------------------------------ I/O thread
+    def background(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """Run ``fn(*args)`` on the campaign's I/O thread; returns its future."""
+        if self._io is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._io = ThreadPoolExecutor(1, thread_name_prefix="gonio-io")
+        return self._io.submit(fn, *args)
+
+    def _close_io(self) -> None:
+        if self._io is not None:
+            self._io.shutdown(wait=True)
+            self._io = None
+
+    @staticmethod
+    def blas() -> Any:
+        """A context with scipy's BLAS on one thread too (loaded after the executor began)."""
+        from gonio.campaign.blas import SingleThreadBLAS
+
+        return SingleThreadBLAS()
+
+    # ------------------------------------------------------------------ plots
+    def plot(self, fn: Callable[..., None], *args: Any, each: Iterable[Any]) -> None:
+        """``fn(v, *args)`` for every ``v`` of ``each``: in the plot process (in parallel
+        forks) if there is one, else here and now."""
+        each = list(each)
+        if self._plotter is not None:
+            self._plotter.submit(fn, *args, each=each)
+            return
+        for v in each:
+            fn(v, *args)
+
+    def wait_plots(self) -> None:
+        """Block until every plot sent so far is drawn; re-raise the first error."""
+        if self._plotter is not None:
+            self._plotter.wait()
+
+
+def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> int:
+    """Worker processes for ``n_tasks`` parallel tasks: the CPU count (at most ``most``) when
+    there are at least ``minimum_tasks`` and ``fork`` exists, else 1."""
+    import multiprocessing as mp
+
+    if n_tasks < minimum_tasks or "fork" not in mp.get_all_start_methods():
+        return 1
+    return max(1, min(os.cpu_count() or 1, most))

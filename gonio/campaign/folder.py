@@ -1,0 +1,142 @@
+"""A campaign's results folder: the raw capture groups, the plan, the samples table.
+
+Layout (written by :func:`gonio.campaign.run`)::
+
+    OUT/plan.json                       the resolved plan
+    OUT/raw/t40.00/standard_00.tif      raw 16-bit frames + ``.tif.json`` side-cars
+    OUT/raw/t40.00/background_00.tif       (standard and background once per θi)
+    OUT/raw/t40.00_r090/measured_00.tif    (the sample, per θi and sample rotation)
+    OUT/raw/<key>/done.json             written last: the capture group is complete
+    OUT/samples.csv                     reduced BRDF samples (all incidences)
+
+Every file is written to a temporary name and renamed (:mod:`gonio.io.atomic`), so an
+interrupted run leaves only complete files; a group without its ``done.json`` (or whose files
+do not read back) is taken again on resume.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.campaign.plan import Plan
+from gonio.io.atomic import atomic_write_bytes
+from gonio.samples import BRDFSamples
+
+__all__ = [
+    "Frames",
+    "check_out",
+    "flush_raw",
+    "group_key",
+    "load_group",
+    "save_group",
+    "save_samples",
+    "write_json",
+]
+
+_RAW_SUFFIX = ".tif"
+
+
+Frames = list[tuple[np.ndarray, dict[str, Any]]]
+
+
+def write_json(path: Path, obj: Any, durable: bool = True) -> None:
+    from gonio.cli._common import to_json
+
+    atomic_write_bytes(path, (to_json(obj) + "\n").encode(), durable=durable)
+
+
+def group_key(theta_deg: float, rot_deg: float | None = None) -> str:
+    k = f"t{theta_deg:05.2f}"
+    return k if rot_deg is None else f"{k}_r{rot_deg % 360:05.1f}"
+
+
+def _save_frames(folder: Path, kind: str, frames: Frames) -> list[str]:
+    from gonio.io.images import write_image
+
+    names = []
+    for k, (img, meta) in enumerate(frames):
+        name = f"{kind}_{k:02d}{_RAW_SUFFIX}"
+        # raw frames: speed over size; flushed to the disk together after the captures
+        # (:func:`flush_raw`), a group whose files do not read back is taken again on resume
+        write_image(folder / name, img, meta, compress=False, durable=False)
+        names.append(name)
+    return names
+
+
+def load_group(folder: Path) -> dict[str, Frames] | None:
+    """Frames of a completed capture group, or ``None`` if it is absent or incomplete."""
+    from gonio.io.images import read_image
+
+    done = folder / "done.json"
+    if not done.is_file():
+        return None
+    try:
+        rec = json.loads(done.read_text())
+        out: dict[str, Frames] = {}
+        for kind, names in rec["files"].items():
+            out[kind] = [read_image(folder / n, require_metadata=True) for n in names]
+        return out
+    except (ValueError, KeyError, OSError):
+        return None  # damaged: take it again
+
+
+def save_group(folder: Path, frames: dict[str, Frames], seed: int) -> None:
+    """Write one capture group: its frames, then its ``done.json`` (the group is complete)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "done.json").unlink(missing_ok=True)
+    files = {kind: _save_frames(folder, kind, fr) for kind, fr in frames.items()}
+    write_json(folder / "done.json", {"files": files, "seed": seed}, durable=False)
+
+
+def check_out(outp: Path, plan: Plan, resume: bool, truth: Any = None) -> None:
+    outp.mkdir(parents=True, exist_ok=True)
+    pfile = outp / "plan.json"
+    if resume and pfile.is_file():
+        try:
+            old = Plan.from_dict(json.loads(pfile.read_text())).resolved(truth)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{pfile}: cannot resume, unreadable plan ({exc})") from None
+        if capture_fields(old) != capture_fields(plan):
+            raise ValueError(
+                f"cannot resume in {outp}: its plan.json differs from this plan in what is "
+                f"captured ({capture_fields(old)} vs {capture_fields(plan)}); use another --out"
+            )
+    write_json(pfile, plan.to_dict())
+
+
+def capture_fields(plan: Plan) -> dict[str, Any]:
+    d = plan.to_dict()
+    keys = ("material", "instrument", "mirror", "exposures_s", "noise", "seed")
+    # (thinning is not part of it: raw captures can be reduced again with another thinning)
+    return {k: d[k] for k in keys}
+
+
+def flush_raw(raw: Path) -> float:
+    """Flush every raw frame, side-car and group marker to the disk; return the seconds.
+
+    The frames are written without a flush each (``durable=False``): one ``fsync`` per
+    frame made every capture task wait for the disk (measured, default campaign wall clock:
+    1.99-2.15 s in 8 runs with a flush per file, 1.84-1.93 s in 6 runs with this one pass);
+    flushing them all here, on a thread while the fit runs, keeps a finished campaign's
+    files safe from a power failure all the same.
+    """
+    from gonio.io.atomic import fsync_files
+
+    t = time.perf_counter()
+    if raw.is_dir():
+        fsync_files(p for p in sorted(raw.rglob("*")) if p.is_file())
+    return time.perf_counter() - t
+
+
+def save_samples(outp: Path, samples: BRDFSamples, parts: list[str]) -> float:
+    """Write ``samples.csv`` from its pre-formatted parts; return the seconds it took."""
+    from gonio.io.samples_table import write_csv_parts
+
+    t = time.perf_counter()
+    write_csv_parts(outp / "samples.csv", samples.metadata, samples.columns, parts)
+    return time.perf_counter() - t

@@ -1,0 +1,213 @@
+"""A campaign's report: the summary (truth against fit), the text table, plots, Radiance.
+
+The summary is the one place where the simulator's truth and the campaign's result meet
+(``docs/architecture.md``, Truth and knowledge): everything before it works from the captures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.campaign.plan import Plan
+from gonio.samples import BRDFSamples
+
+__all__ = ["PLOTS", "CampaignResult", "draw", "summarise", "summary_table", "write_report"]
+
+
+@dataclass
+class CampaignResult:
+    """What :func:`run` returns: the plan, the samples, the fits and the summary."""
+
+    plan: Plan
+    out: Path | None
+    samples: BRDFSamples
+    fit: Any
+    compare: dict[str, Any]
+    summary: dict[str, Any]
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+#: The campaign's plots (``OUT/plots/<name>.png``).
+PLOTS = ("incidence_plane", "hemisphere", "residuals")
+
+
+def draw(name: str, samples: BRDFSamples, model: Any, folder: Path, title: str) -> None:
+    from gonio import plots
+
+    path = folder / f"{name}.png"
+    if name == "hemisphere":
+        plots.plot_hemisphere(samples, path, title=title, max_panels=12)
+    elif name == "incidence_plane":
+        plots.plot_incidence_plane(samples, model, path, title=title)
+    else:
+        plots.plot_residuals(samples, model, path, title=title)
+
+
+def _truth_params(truth: Any) -> dict[str, float]:
+    """Float parameters of the truth; per-band arrays by their band mean (what a grey
+    camera sees of a spectral coefficient that enters the BRDF linearly)."""
+    out = {}
+    for k, v in truth.params.items():
+        if isinstance(v, bool) or v is None:
+            continue
+        if isinstance(v, int | float) and math.isfinite(v):
+            out[k] = float(v)
+        elif isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.ndim == 1:
+            out[k] = float(np.mean(v))
+    return out
+
+
+def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -> dict:
+    truth_p = _truth_params(truth) if plan.model == truth.name else {}
+    fitp = {k: float(v) for k, v in result.params.items()}
+    stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in result.stderr.items()}
+    rel = {}
+    within = {}
+    for k, tv in truth_p.items():
+        if k in fitp and k in result.free:
+            rel[k] = abs(fitp[k] - tv) / abs(tv) if tv != 0 else abs(fitp[k])
+            s = result.stderr[k]
+            within[k] = bool(abs(fitp[k] - tv) <= 3 * s) if math.isfinite(s) else None
+    comp = {}
+    for k, v in compare.items():
+        if isinstance(v, Exception):
+            comp[k] = {"error": str(v)}
+        else:
+            comp[k] = {
+                "rms": v.rms,
+                "chi2_dof": v.chi2_dof,
+                "converged": v.converged,
+                "params": v.params,
+            }
+    extra = {}
+    if truth.name == "lafortune" and result.model.name == "lafortune":
+        # lobes are an object parameter: list them (sorted by exponent n) side by side
+        def lobes(m: Any) -> list[list[float]]:
+            return sorted(([float(x) for x in lb[:4]] for lb in m.params["lobes"]),
+                          key=lambda lb: lb[3])  # fmt: skip
+
+        extra["lobes"] = {"truth": lobes(truth), "fit": lobes(result.model)}
+    return {
+        **extra,
+        "material": plan.material,
+        "class": info.get("class"),
+        "model": plan.model,
+        "truth_model": truth.name,
+        "truth": _truth_params(truth),
+        "fit": fitp,
+        "stderr": stderr,
+        "relative_error": rel,
+        "within_3_sigma": within,
+        "rms": result.rms,
+        "rms_relative": result.rms_relative,
+        "chi2_dof": result.chi2_dof if math.isfinite(result.chi2_dof) else None,
+        "converged": result.converged,
+        "n_samples": len(samples),
+        "n_pixels": n_pixels,
+        "n_captures": {
+            "incidence_angles": len(plan.theta_i_deg),
+            "rotations": len(plan.rotations_deg),
+            "resumed_groups": n_loaded,
+        },
+        "compare": comp,
+        "seed": plan.seed,
+        "noise": plan.noise,
+        "plan": plan.to_dict(),
+        "files": {"samples": "samples.csv", "fit": "fit.json"},
+    }
+
+
+def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> str | None:
+    if plan.model not in ("ward", "ward_approx"):
+        return None
+    from gonio.io.radiance import material_type_for, ward_material
+
+    mtype = material_type_for(str(info.get("class", "dielectric")))
+    try:
+        return ward_material(
+            result.params,
+            mtype,
+            name=f"gonio_{plan.material}",
+            comment=f"gonio campaign fit of {plan.material} ({plan.model}, seed {plan.seed})\n"
+            f"rho_d {result.params['rho_d']:.5g} rho_s {result.params['rho_s']:.5g} "
+            f"alpha_x {result.params['alpha_x']:.5g} alpha_y {result.params['alpha_y']:.5g}",
+        )
+    except ValueError:
+        return None
+
+
+def summary_table(summary: Mapping[str, Any]) -> str:
+    """The short text report: true vs fitted parameters, errors, counts, stage times."""
+    from gonio.cli._common import format_table
+
+    rows = []
+    truth = summary.get("truth", {})
+    for k, v in summary["fit"].items():
+        t = truth.get(k) if summary["model"] == summary.get("truth_model") else None
+        s = summary["stderr"].get(k)
+        rel = summary["relative_error"].get(k)
+        rows.append(
+            (
+                k,
+                "" if t is None else f"{t:.5g}",
+                f"{v:.5g}",
+                "" if s is None else f"{s:.2g}",
+                "" if rel is None else f"{100 * rel:.2f}%",
+                "" if t is None or s in (None, 0) else f"{(v - t) / s:+.2f}",
+            )
+        )
+    lines = [
+        f"{summary['material']} fitted with {summary['model']}: "
+        f"{'converged' if summary['converged'] else 'NOT converged'}, "
+        f"{summary['n_samples']} samples from {summary['n_pixels']} pixels, "
+        f"rms {summary['rms']:.4g} sr^-1",
+        format_table(("param", "truth", "fit", "stderr", "rel.err", "pull"), rows),
+    ]
+    if summary.get("compare"):
+        crow = [(summary["model"], f"{summary['rms']:.4g}", summary.get("chi2_dof") or "")]
+        for k, v in summary["compare"].items():
+            crow.append(
+                (
+                    k,
+                    f"{v['rms']:.4g}" if "rms" in v else v.get("error", ""),
+                    v.get("chi2_dof") or "",
+                )
+            )
+        lines.append(format_table(("model", "rms (sr^-1)", "chi2/dof"), crow))
+    tm = summary.get("timings_s", {})
+    lines.append("time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in tm.items()))
+    return "\n".join(lines)
+
+
+def write_report(
+    outp: Path | None,
+    plan: Plan,
+    info: Mapping[str, Any],
+    result: Any,
+    compare: Mapping[str, Any],
+    summary: dict[str, Any],
+) -> None:
+    """Write ``fit.json`` (the fit and the compared models) and, for a fit Radiance can
+    render, ``material.rad`` (recorded in ``summary["files"]``); nothing without ``outp``."""
+    if outp is None:
+        return
+    from gonio.campaign.folder import write_json
+
+    fitd = result.to_dict()
+    fitd["compare"] = {
+        k: (v.to_dict() if not isinstance(v, Exception) else {"error": str(v)})
+        for k, v in compare.items()
+    }
+    write_json(outp / "fit.json", fitd)
+    rad = radiance(plan, info, result)
+    if rad is not None:
+        from gonio.io.radiance import write_material
+
+        write_material(outp / "material.rad", rad)
+        summary["files"]["radiance"] = "material.rad"
