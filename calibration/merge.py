@@ -99,50 +99,16 @@ def merge_linear(
     if len(darks) != len(images):
         raise ValueError(f"got {len(images)} images but {len(darks)} dark frames")
     sensor = sensor or SensorModel.from_metadata(metas[0])
-    g = sensor.gain
-    rn2 = (sensor.read_noise / g) ** 2 + 1.0 / 12.0
-
-    raws, scales, offs, base = [], [], [], []
-    shape = None
-    for k, (img, meta, dark) in enumerate(zip(images, metas, darks)):
-        raw = _as_image(img, f"images[{k}]")
-        if shape is None:
-            shape = raw.shape
-        elif raw.shape != shape:
-            raise ValueError(f"images[{k}] has shape {raw.shape}, expected {shape}")
-        s = exposure_scale(meta)
-        if dark is not None:
-            d = _as_image(dark, f"darks[{k}]")
-            if d.shape != shape:
-                raise ValueError(f"darks[{k}] has shape {d.shape}, expected {shape}")
-            dark_adu = np.maximum(d - sensor.black_level, 0.0)
-            off = d
-            # the dark electrons' shot noise and read noise, in the frame and in the dark
-            b = 2.0 * (dark_adu / g + rn2)
-        else:
-            t = _exposure_time(meta)
-            dark_adu = np.full(shape, sensor.dark_current * t / g)
-            off = sensor.black_level + dark_adu
-            b = dark_adu / g + rn2
-        raws.append(raw)
-        scales.append(s)
-        offs.append(off)
-        base.append(b)
-
-    order = np.argsort(scales)[::-1]  # longest exposure first
-    xs = [(raws[k] - offs[k]) / scales[k] for k in range(len(raws))]
-    ok = [(raws[k] < sensor.white_level) & (raws[k] > 0.0) for k in range(len(raws))]
-
+    fr = _Frames(images, metas, darks, sensor)
+    shape = fr.shape
+    order = np.argsort(fr.scales)[::-1]  # longest exposure first
     # initial estimate: the longest exposure that is usable at each pixel
     x = np.zeros(shape)
     have = np.zeros(shape, bool)
     for k in order:
-        take = ok[k] & ~have
-        x[take] = xs[k][take]
+        take = fr.ok[k] & ~have
+        x[take] = fr.xs[k][take]
         have |= take
-
-    def frame_var(k: int, est: NDArray) -> NDArray:
-        return (np.maximum(est * scales[k], 0.0) / g + base[k]) / scales[k] ** 2
 
     nb = _check_variance_mode(variance) == "neighbours"
     fixed = None
@@ -150,7 +116,7 @@ def merge_linear(
         fixed = np.asarray(variance_at, dtype=np.float64)
         if fixed.shape != shape:
             raise ValueError(f"variance_at has shape {fixed.shape}, expected {shape}")
-    for _ in range(max(1, int(iterations))):
+    for _ in range(max(1, int(iterations))):  # inverse-variance weights at the estimate
         est = x
         if fixed is not None:
             est = np.where(np.isfinite(fixed), fixed, x)
@@ -159,10 +125,10 @@ def merge_linear(
             est = np.where(okn, xn, x)
         wsum = np.zeros(shape)
         xsum = np.zeros(shape)
-        for k in range(len(raws)):
-            w = np.where(ok[k], 1.0 / frame_var(k, est), 0.0)
+        for k in range(len(fr.raws)):
+            w = np.where(fr.ok[k], 1.0 / fr.variance(k, est), 0.0)
             wsum += w
-            xsum += w * xs[k]
+            xsum += w * fr.xs[k]
         x = np.where(have, xsum / np.where(have, wsum, 1.0), x)
 
     sigma = np.where(have, 1.0 / np.sqrt(np.where(have, wsum, 1.0)), 0.0)
@@ -170,13 +136,59 @@ def merge_linear(
     # pixels without any usable frame: clipped at the floor everywhere → keep the longest
     # exposure's reading (with its noise); saturated everywhere → invalid
     k0 = order[0]
+    raws, white = fr.raws, sensor.white_level
     floor_only = ~have & np.logical_or.reduce([raws[k] <= 0.0 for k in range(len(raws))])
-    floor_only &= np.logical_and.reduce([raws[k] < sensor.white_level for k in range(len(raws))])
+    floor_only &= np.logical_and.reduce([raws[k] < white for k in range(len(raws))])
     if floor_only.any():
-        x = np.where(floor_only, xs[k0], x)
-        sigma = np.where(floor_only, np.sqrt(frame_var(k0, np.zeros(shape))), sigma)
+        x = np.where(floor_only, fr.xs[k0], x)
+        sigma = np.where(floor_only, np.sqrt(fr.variance(k0, np.zeros(shape))), sigma)
     valid = have | floor_only
     return Measurement(x, sigma, valid)
+
+
+class _Frames:
+    """The bracketed frames of :func:`merge_linear`, checked and linearised: per frame the
+    raw reading, its exposure scale, the offset removed (dark frame or black level plus mean
+    dark current), the signal-independent variance (read noise, quantisation, dark), the
+    per-unit-scale estimate ``xs`` and the usable-pixel mask ``ok`` (neither saturated nor
+    clipped at the floor)."""
+
+    def __init__(self, images: list, metas: list, darks: list, sensor: SensorModel) -> None:
+        g = self.gain = sensor.gain
+        rn2 = (sensor.read_noise / g) ** 2 + 1.0 / 12.0
+        self.raws, self.scales, offs, self.base = [], [], [], []
+        self.shape = None
+        for k, (img, meta, dark) in enumerate(zip(images, metas, darks)):
+            raw = _as_image(img, f"images[{k}]")
+            if self.shape is None:
+                self.shape = raw.shape
+            elif raw.shape != self.shape:
+                raise ValueError(f"images[{k}] has shape {raw.shape}, expected {self.shape}")
+            self.scales.append(exposure_scale(meta))
+            if dark is not None:
+                d = _as_image(dark, f"darks[{k}]")
+                if d.shape != self.shape:
+                    raise ValueError(f"darks[{k}] has shape {d.shape}, expected {self.shape}")
+                dark_adu = np.maximum(d - sensor.black_level, 0.0)
+                off = d
+                # the dark electrons' shot noise and read noise, in the frame and in the dark
+                b = 2.0 * (dark_adu / g + rn2)
+            else:
+                t = _exposure_time(meta)
+                dark_adu = np.full(self.shape, sensor.dark_current * t / g)
+                off = sensor.black_level + dark_adu
+                b = dark_adu / g + rn2
+            self.raws.append(raw)
+            offs.append(off)
+            self.base.append(b)
+        n = len(self.raws)
+        self.xs = [(self.raws[k] - offs[k]) / self.scales[k] for k in range(n)]
+        self.ok = [(self.raws[k] < sensor.white_level) & (self.raws[k] > 0.0) for k in range(n)]
+
+    def variance(self, k: int, est: NDArray) -> NDArray:
+        """Frame ``k``'s variance per unit exposure scale² at the signal estimate ``est``."""
+        s = self.scales[k]
+        return (np.maximum(est * s, 0.0) / self.gain + self.base[k]) / s**2
 
 
 def _exposure_time(meta: Mapping[str, Any]) -> float:

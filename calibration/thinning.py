@@ -171,24 +171,7 @@ def thin(
     -------
     ThinningResult
     """
-    w = as_directions(wo, "wo").reshape(-1, 3)
-    v = as_finite_array(value, "value").ravel()
-    s = as_finite_array(sigma, "sigma").ravel()
-    if not (w.shape[0] == v.shape[0] == s.shape[0]):
-        raise ValueError(
-            f"wo, value and sigma must have the same length, got {w.shape[0]}, {v.shape[0]}, "
-            f"{s.shape[0]}"
-        )
-    if (s < 0).any():
-        raise ValueError("sigma must be ≥ 0")
-    for name, lev in (("base_level", base_level), ("max_level", max_level)):
-        if not (isinstance(lev, int | np.integer) and 0 <= lev <= 15):
-            raise ValueError(f"{name} must be an integer in [0, 15], got {lev!r}")
-    if max_level < base_level:
-        raise ValueError(f"max_level = {max_level} must be ≥ base_level = {base_level}")
-    up = w[:, 2] >= 0.0
-    if not up.all():
-        raise ValueError(f"wo has {int((~up).sum())} direction(s) below the horizon")
+    w, v, s = _thin_inputs(wo, value, sigma, base_level, max_level)
     settings = {
         "base_level": int(base_level),
         "max_level": int(max_level),
@@ -213,7 +196,7 @@ def thin(
     var = s * s
     vmax = None
 
-    out_w, out_v, out_s, out_n, out_l, out_sp = [], [], [], [], [], []
+    leaves: list[tuple] = []
     active = np.arange(n_before)
     for level in range(int(base_level), m + 1):
         if active.size == 0:
@@ -227,50 +210,98 @@ def thin(
             vmax = float(np.max(np.abs(mean)))
         split = np.zeros(uniq.size, bool)
         if level < m:
-            # children statistics
+            # children statistics: bits of the next level's cell inside this one
             bi = (ij[active, 0] >> (shift - 1)) & 1
             bj = (ij[active, 1] >> (shift - 1)) & 1
-            ckey = (bi << 1) | bj
-            ck = inv * 4 + ckey
-            cn = np.bincount(ck, minlength=4 * uniq.size).reshape(-1, 4)
-            cs = np.bincount(ck, weights=v[active], minlength=4 * uniq.size).reshape(-1, 4)
-            cv = np.bincount(ck, weights=var[active], minlength=4 * uniq.size).reshape(-1, 4)
-            has = cn > 0
-            cmean = np.where(has, cs / np.where(has, cn, 1), 0.0)
-            cse2 = np.where(has, cv / np.where(has, cn, 1) ** 2, 0.0)
-            dev = np.where(has, cmean - mean[:, None], 0.0)
-            nchild = has.sum(axis=1)
-            rms_dev = np.sqrt((dev**2).sum(axis=1) / np.maximum(nchild, 1))
-            chi2 = np.where(has, dev**2 / np.where(cse2 > 0, cse2, np.inf), 0.0).sum(axis=1)
-            dof = np.maximum(nchild - 1, 1)
-            significant = chi2 > dof + z * np.sqrt(2.0 * dof)
-            gradient = (rms_dev > rel_tol * np.abs(mean)) & (significant | (cse2.sum(1) == 0))
+            ck = inv * 4 + ((bi << 1) | bj)
+            gradient, nchild = _significant_gradient(ck, uniq.size, v[active], var[active],
+                                                     mean, rel_tol, z)  # fmt: skip
             peak = (np.abs(mean) > peak_fraction * vmax) & (level < peak_level)
             split = (n >= min_split) & (nchild > 1) & (gradient | peak)
         leaf = ~split
         if leaf.any():
-            nl = n[leaf]
-            mu = mean[leaf]
-            wsum = sw[leaf]
-            out_w.append(wsum / np.linalg.norm(wsum, axis=1, keepdims=True))
-            out_v.append(mu)
-            out_s.append(np.sqrt(svar[leaf]) / nl)
-            out_n.append(nl.astype(np.int64))
-            out_l.append(np.full(nl.size, level, np.int64))
-            within = np.maximum(s2[leaf] / nl - mu * mu - svar[leaf] / nl, 0.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                out_sp.append(np.where(mu != 0, np.sqrt(within) / np.abs(mu), np.nan))
+            leaves.append(_leaf_rows(level, n[leaf], mean[leaf], sw[leaf], s2[leaf], svar[leaf]))
         active = active[split[inv]]
 
-    wo_out = np.concatenate(out_w)
+    cols = [np.concatenate(c) for c in zip(*leaves)]
+    wo_out = cols[0]
     return ThinningResult(
         wo=wo_out,
-        value=np.concatenate(out_v),
-        sigma=np.concatenate(out_s),
-        n_pixels=np.concatenate(out_n),
-        level=np.concatenate(out_l),
+        value=cols[1],
+        sigma=cols[2],
+        n_pixels=cols[3],
+        level=cols[4],
         n_before=n_before,
         n_after=int(wo_out.shape[0]),
-        spread=np.concatenate(out_sp),
+        spread=cols[5],
         settings=settings,
+    )
+
+
+def _thin_inputs(
+    wo: ArrayLike, value: ArrayLike, sigma: ArrayLike, base_level: Any, max_level: Any
+) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`thin`'s inputs checked: directions (N, 3) on the upper hemisphere, values and
+    errors (N,) finite, σ >= 0, levels integers in [0, 15] with max >= base."""
+    w = as_directions(wo, "wo").reshape(-1, 3)
+    v = as_finite_array(value, "value").ravel()
+    s = as_finite_array(sigma, "sigma").ravel()
+    if not (w.shape[0] == v.shape[0] == s.shape[0]):
+        raise ValueError(
+            f"wo, value and sigma must have the same length, got {w.shape[0]}, {v.shape[0]}, "
+            f"{s.shape[0]}"
+        )
+    if (s < 0).any():
+        raise ValueError("sigma must be ≥ 0")
+    for name, lev in (("base_level", base_level), ("max_level", max_level)):
+        if not (isinstance(lev, int | np.integer) and 0 <= lev <= 15):
+            raise ValueError(f"{name} must be an integer in [0, 15], got {lev!r}")
+    if max_level < base_level:
+        raise ValueError(f"max_level = {max_level} must be ≥ base_level = {base_level}")
+    up = w[:, 2] >= 0.0
+    if not up.all():
+        raise ValueError(f"wo has {int((~up).sum())} direction(s) below the horizon")
+    return w, v, s
+
+
+def _significant_gradient(
+    ck: NDArray, n_cells: int, v: NDArray, var: NDArray, mean: NDArray, rel_tol: float,
+    z: float,
+) -> tuple[NDArray, NDArray]:  # fmt: skip
+    """Per cell: do its four children's means differ from the cell mean by more than
+    ``rel_tol`` (rms), and significantly (χ² about the mean above its degrees of freedom by
+    ``z`` standard deviations, or no error known)? ``ck`` is each pixel's cell·4 + child.
+    Also returns each cell's number of non-empty children."""
+    cn = np.bincount(ck, minlength=4 * n_cells).reshape(-1, 4)
+    cs = np.bincount(ck, weights=v, minlength=4 * n_cells).reshape(-1, 4)
+    cv = np.bincount(ck, weights=var, minlength=4 * n_cells).reshape(-1, 4)
+    has = cn > 0
+    cmean = np.where(has, cs / np.where(has, cn, 1), 0.0)
+    cse2 = np.where(has, cv / np.where(has, cn, 1) ** 2, 0.0)
+    dev = np.where(has, cmean - mean[:, None], 0.0)
+    nchild = has.sum(axis=1)
+    rms_dev = np.sqrt((dev**2).sum(axis=1) / np.maximum(nchild, 1))
+    chi2 = np.where(has, dev**2 / np.where(cse2 > 0, cse2, np.inf), 0.0).sum(axis=1)
+    dof = np.maximum(nchild - 1, 1)
+    significant = chi2 > dof + z * np.sqrt(2.0 * dof)
+    gradient = (rms_dev > rel_tol * np.abs(mean)) & (significant | (cse2.sum(1) == 0))
+    return gradient, nchild
+
+
+def _leaf_rows(
+    level: int, nl: NDArray, mu: NDArray, wsum: NDArray, s2: NDArray, svar: NDArray
+) -> tuple:
+    """The output rows of the cells that stay whole at ``level``: direction (the normalised
+    sum of their pixels' directions), mean, its standard error, pixel count, level, and the
+    relative spread of the values within the cell beyond their noise."""
+    within = np.maximum(s2 / nl - mu * mu - svar / nl, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.where(mu != 0, np.sqrt(within) / np.abs(mu), np.nan)
+    return (
+        wsum / np.linalg.norm(wsum, axis=1, keepdims=True),
+        mu,
+        np.sqrt(svar) / nl,
+        nl.astype(np.int64),
+        np.full(nl.size, level, np.int64),
+        spread,
     )

@@ -15,22 +15,5 @@ The rooms inside (``docs/architecture.md``):
 instrument).
 """
 
-from gonio.campaign.lbl import (
-    DEFAULT_ANGLES_DEG,
-    CampaignResult,
-    Plan,
-    capture_seed,
-    default_plan,
-    run,
-    summary_table,
-)
-
-__all__ = [
-    "DEFAULT_ANGLES_DEG",
-    "CampaignResult",
-    "Plan",
-    "capture_seed",
-    "default_plan",
-    "run",
-    "summary_table",
-]
+from gonio.campaign.lbl import *  # noqa: F403  (the public names, listed in lbl.__all__)
+from gonio.campaign.lbl import __all__  # noqa: F401

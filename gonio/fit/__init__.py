@@ -5,24 +5,5 @@ non-linear least squares; the linear coefficients of a model are solved exactly 
 of its other parameters by :mod:`gonio.fit.linear` (variable projection).
 """
 
-from gonio.fit.core import (
-    RESIDUALS,
-    FitResult,
-    fit,
-    initial_guess,
-    parse_model,
-    predict,
-    register_codec,
-    register_guesser,
-)
-
-__all__ = [
-    "RESIDUALS",
-    "FitResult",
-    "fit",
-    "initial_guess",
-    "parse_model",
-    "predict",
-    "register_codec",
-    "register_guesser",
-]
+from gonio.fit.core import *  # noqa: F403  (the public names, listed in core.__all__)
+from gonio.fit.core import __all__  # noqa: F401
