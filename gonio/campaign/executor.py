@@ -72,15 +72,16 @@ def write_behind(fn: Callable[..., None], *args: Any) -> None:
 def drain_writes() -> float:
     """Wait for every :func:`write_behind` job of this process; return the seconds the writer
     was busy, and stop its thread (the next :func:`write_behind` starts another)."""
-    pool = _WRITER.pop("pool", None)
+    pool = _WRITER.get("pool")
     if pool is None:
         return 0.0
-    futures, busy = _WRITER.pop("futures"), _WRITER.pop("busy")
     try:
-        for f in futures:
+        for f in _WRITER["futures"]:
             f.result()
     finally:
-        pool.shutdown(wait=True)
+        pool.shutdown(wait=True)  # every job has ended (and added its time) after this
+        busy = _WRITER.pop("busy")
+        del _WRITER["pool"], _WRITER["futures"]
     return busy + 0.0
 
 

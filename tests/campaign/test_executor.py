@@ -1,0 +1,55 @@
+"""The campaign executor: write-behind, the in-process and pooled map, stage timings."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from gonio.campaign import executor
+
+
+def test_drain_waits_for_a_failing_write_and_still_counts_the_others():
+    # a job that fails first while a later one is still running: the drain must wait for
+    # both before it reads the writer's busy time (it read it first and a late job then
+    # raised KeyError on the popped counter)
+    started = threading.Event()
+
+    def fails():
+        raise OSError("disk full")
+
+    def slow():
+        started.set()
+        time.sleep(0.05)
+
+    executor.write_behind(slow)
+    executor.write_behind(fails)
+    started.wait(1.0)
+    with pytest.raises(OSError, match="disk full"):
+        executor.drain_writes()
+    assert executor.drain_writes() == 0.0  # the writer is gone; a new one starts on demand
+    executor.write_behind(slow)
+    assert executor.drain_writes() >= 0.05
+
+
+def _square(k):
+    return k * k + executor.worker_state()["offset"]
+
+
+def test_map_in_process_and_on_a_pool_give_the_same_results():
+    square = _square
+    calls = [(k,) for k in range(6)]
+    with executor.CampaignExecutor(1) as ex:
+        one = dict(ex.map(square, calls, state={"offset": 1}))
+    with executor.CampaignExecutor(2) as ex:
+        two = dict(ex.map(square, calls, state={"offset": 1}))
+        with ex.stage("x"):
+            pass
+    assert one == two == {k: k * k + 1 for k in range(6)}
+    assert set(ex.timings) == {"x"}
+
+
+def test_workers_must_be_positive():
+    with pytest.raises(ValueError, match="workers"):
+        executor.CampaignExecutor(0)
