@@ -1012,20 +1012,10 @@ class LBLInstrument:
         clip, offsets) and the ADC with no further clip."""
         sen = self.sensor
         h, w = self.lens.height, self.lens.width
-        e = np.asarray(e, dtype=np.float64).reshape(h, w)
-        if sen.has_charge_effects:
-            e = sen.spread(e, e - np.asarray(dark_e).reshape(h, w))
-        out = sen.readout(e, rng, noise=noise)
+        e = sen.spread(np.asarray(e, dtype=np.float64).reshape(h, w), dark_e)
         if binning is None:
-            if sen.linear:
-                from gonio.simulator import _kernels
-
-                img = np.empty(h * w, dtype=np.uint16)
-                g, b, m = 1.0 / sen.gain, sen.black_level, float(sen.max_dn)
-                _kernels.digitise_linear(out.reshape(-1), math.inf, g, b, m, img)
-                return img.reshape(h, w), self.lens
-            return sen.adc(out), self.lens
-        return self._bin(out, binning, math.inf)
+            return sen.readout_dn(e, rng, noise=noise), self.lens
+        return self._bin(sen.readout(e, rng, noise=noise), binning, math.inf)
 
     def _bin(self, e: NDArray, binning, clip_e: float) -> tuple[NDArray[np.uint16], FisheyeLens]:
         """Area-average binning to ``binning = (width, height)`` of electrons ``e`` clipped at

@@ -545,27 +545,42 @@ class Sensor:
         )
         return out
 
-    def spread(self, electrons: NDArray, photo: NDArray | None = None) -> NDArray:
+    def spread(self, electrons: NDArray, dark: NDArray | None = None) -> NDArray:
         """Blooming, then smear, on an expected-charge image ``(height, width)`` (new array).
 
-        ``photo`` is its photo-generated part (default: all of it), which smear follows.
-        Without :attr:`blooming` and :attr:`smear` the input is returned as is.
+        ``dark`` is its dark part (default: none), which smear does not follow: smear adds
+        ``smear / rows`` times the column's sum of the rest (the photo-charge; ``rows``: the
+        physical array's height) to every pixel of the column. Without :attr:`blooming` and
+        :attr:`smear` the input is returned as is.
         """
         e = np.asarray(electrons, dtype=np.float64)
         if not self.has_charge_effects:
             return e
         if e.ndim != 2:
             raise ValueError(f"spread takes a (height, width) image, got shape {e.shape}")
-        out = np.array(e, dtype=np.float64, order="C")
-        if self.blooming > 0.0 and out.max() > self.full_well:
+        cols = None
+        if self.smear > 0.0:  # the light during transfer follows the pre-blooming photo-charge
+            cols = e.sum(axis=0)
+            if dark is not None:
+                cols -= np.asarray(dark, dtype=np.float64).reshape(e.shape).sum(axis=0)
+            rows = e.shape[0] if self.array_shape is None else self.array_shape[0]
+            cols = (self.smear / rows) * np.maximum(cols, 0.0)
+        out = e
+        if self.blooming > 0.0:
             from gonio.simulator import _kernels
 
+            out = np.array(e, dtype=np.float64, order="C")
             _kernels.bloom_columns(out, self.full_well, self.blooming)
-        if self.smear > 0.0:
-            p = e if photo is None else np.asarray(photo, dtype=np.float64).reshape(e.shape)
-            rows = e.shape[0] if self.array_shape is None else self.array_shape[0]
-            out += (self.smear / rows) * np.clip(p, 0.0, None).sum(axis=0)[None, :]
+        if cols is not None:
+            out = out + cols[None, :] if out is e else np.add(out, cols[None, :], out=out)
         return out
+
+    def _readout_args(self, lam: NDArray) -> tuple[NDArray, NDArray]:
+        """(flat float64 means, flat offsets or an empty array) for the kernels (which treat
+        a negative mean as 0)."""
+        flat = np.ascontiguousarray(lam, dtype=np.float64).reshape(-1)
+        off = self.offset_map(*lam.shape)
+        return flat, (np.empty(0) if off is None else off.reshape(-1))
 
     def readout(
         self,
@@ -608,6 +623,29 @@ class Sensor:
         if off is not None:
             e += off
         return e
+
+    def readout_dn(
+        self, electrons: NDArray, rng: np.random.Generator | None, *, noise: bool = True
+    ) -> NDArray[np.uint16]:
+        """:meth:`readout` and :meth:`adc` in one compiled pass for a linear sensor (the same
+        image bit for bit: the same random numbers and arithmetic); any other sensor, or no
+        numba, takes the two steps."""
+        lam = np.asarray(electrons, dtype=np.float64)
+        if not self.linear or lam.ndim != 2 or not _have_kernels():
+            return self.adc(self.readout(lam, rng, noise=noise))
+        from gonio.simulator import _kernels
+
+        flat, off = self._readout_args(lam)
+        img = np.empty(flat.size, dtype=np.uint16)
+        adc = (1.0 / self.gain, self.black_level, float(self.max_dn))
+        if noise:
+            _kernels.readout_u16(
+                flat, _kernels.seed_state(rng), self.normal_threshold, self.read_noise,
+                self.charge_clip, self.full_well, off, *adc, img,
+            )  # fmt: skip
+        else:
+            _kernels.adc_charge(flat, self.full_well, off, *adc, img)
+        return img.reshape(lam.shape)
 
     def adc(self, electrons: NDArray) -> NDArray[np.uint16]:
         """Gain, response curve, black level, rounding and the ADC's range on electrons
@@ -663,8 +701,8 @@ class Sensor:
             raise ValueError(f"photons must be finite and >= 0 per pixel, got {bad!r}")
         h, w = p.shape
         prnu, _ = self.maps(h, w)
-        photo = self.qe * prnu * p
-        return self.spread(photo + self.dark_map(h, w) * t, photo)
+        dark = self.dark_map(h, w) * t
+        return self.spread(self.qe * prnu * p + dark, dark)
 
     def frames(
         self,
@@ -691,8 +729,10 @@ class Sensor:
             if self.ideal_readout:
                 e = self.add_noise(lam, gen, exact=exact) if noise else lam
                 out[k] = self.digitise(e)
+            elif exact:
+                out[k] = self.adc(self.readout(lam, gen, noise=noise, exact=True))
             else:
-                out[k] = self.adc(self.readout(lam, gen, noise=noise, exact=exact))
+                out[k] = self.readout_dn(lam, gen, noise=noise)
         return out
 
     # ------------------------------------------------------------------ EMVA 1288 figures

@@ -164,13 +164,13 @@ def test_smear_adds_the_columns_mean_photo_charge():
     photo[40:50, 2] = 10_000.0  # a bright band of 1/10 of the height in column 2
     dark = np.full((100, 8), 7.0)
     s = Sensor(smear=1e-4)
-    out = s.spread(photo + dark, photo)
+    out = s.spread(photo + dark, dark)
     expect = photo + dark
     expect[:, 2] += 1e-4 * 10_000.0 / 10.0
     assert np.allclose(out, expect)
     # on a window of a taller physical array the column mean is over the array's height
     tall = Sensor(smear=1e-4, array_shape=(200, 8))
-    assert np.allclose(tall.spread(photo + dark, photo)[:, 2] - expect[:, 2] + 0.1, 0.05)
+    assert np.allclose(tall.spread(photo + dark, dark)[:, 2] - expect[:, 2] + 0.1, 0.05)
 
 
 # ---------------------------------------------------------------------------- fixed patterns
