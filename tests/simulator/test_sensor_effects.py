@@ -353,3 +353,33 @@ def test_reassigned_sensor_or_background_is_used_not_the_cached_old_one():
     assert np.array_equal(b, reproduce(meta)[0])
     with pytest.raises(ValueError, match="sensor must be a Sensor"):
         inst.sensor = "a sensor"
+
+
+def test_charge_clip_near_the_full_well_matches_the_exact_clipped_poisson():
+    # pixels whose mean sits at the full well: the DN's mean and variance are those of
+    # min(Poisson(lam), FW) + N(0, sigma^2), computed exactly from the Poisson pmf
+    from scipy import stats
+
+    fw, sigma, n = 40_000.0, 8.0, 400_000
+    for lam in (39_700.0, 40_000.0, 40_300.0):
+        k = np.arange(int(lam - 12 * math.sqrt(lam)), int(lam + 12 * math.sqrt(lam)))
+        pmf = stats.poisson.pmf(k, lam)
+        c = np.minimum(k, fw)
+        mean = float((pmf * c).sum())
+        var = float((pmf * c * c).sum()) - mean**2 + sigma**2
+        s = Sensor(charge_clip=True, read_noise=sigma, gain=1.0, adc_bits=16, black_level=100.0,
+                   full_well=fw, dark_current=0.0, prnu=0.0)  # fmt: skip
+        e = s.readout(np.full((400, 1000), lam), np.random.default_rng(int(lam)))
+        assert abs(e.mean() - mean) < 5 * math.sqrt(var / n), lam
+        assert abs(e.var() - var) < 5 * var * math.sqrt(2.0 / n) * 1.5, lam
+        # the fused u16 pass is the float readout and the ADC, bit for bit
+        lamimg = np.full((400, 1000), lam)
+        a = s.readout_dn(lamimg, np.random.default_rng(7))
+        b = s.adc(s.readout(lamimg, np.random.default_rng(7)))
+        assert np.array_equal(a, b)
+    r = Sensor.realistic(array_shape=(120, 160))
+    img = np.random.default_rng(0).uniform(0, 60_000, (120, 160))
+    for noise in (False, True):
+        a = r.readout_dn(img, np.random.default_rng(8), noise=noise)
+        b = r.adc(r.readout(img, np.random.default_rng(8), noise=noise))
+        assert np.array_equal(a, b)
