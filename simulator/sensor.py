@@ -660,13 +660,7 @@ class Sensor:
 
     def digitise(self, electrons: NDArray) -> NDArray[np.uint16]:
         """Full-well clip, gain, response curve, black level, rounding and ADC clip."""
-        x = np.minimum(electrons, self.full_well) * (1.0 / self.gain)
-        if not self.linear:
-            xm = self._x_max
-            x = xm * (np.clip(x, 0.0, xm) / xm) ** self.response_gamma
-        dn = np.rint(x + self.black_level)
-        np.clip(dn, 0.0, self.max_dn, out=dn)
-        return dn.astype(np.uint16)
+        return self.adc(np.minimum(electrons, self.full_well))
 
     def linearise(self, dn: NDArray) -> NDArray[np.float64]:
         """Invert the ADC: DN → electrons (before noise), for tests and calibration."""
