@@ -922,7 +922,8 @@ class LBLInstrument:
         if not sen.ideal_readout or sen.has_charge_effects:
             # a sensor with effects: charge effects, readout and ADC of the composed electrons
             e = self._compose(sc, f_number)
-            return self._finish_effects(e, sc.dark * sc.exposure, noise, rng, binning)
+            dark_e = sc.dark * sc.exposure if sen.smear > 0.0 else None  # smear needs it
+            return self._finish_effects(e, dark_e, noise, rng, binning)
         if not noise and skip_noise_draws and binning is None and sen.linear and sc.delta is None:
             # no random draws, ADC fused into the render pass
             return self._compose(sc, f_number, digitise=True).reshape(h, w), self.lens
@@ -988,8 +989,7 @@ class LBLInstrument:
         part (smear follows the rest; default: the instrument's dark map at no exposure)."""
         sen = self.sensor
         if not sen.ideal_readout or sen.has_charge_effects:
-            dark = np.zeros(e.size) if dark_e is None else dark_e
-            return self._finish_effects(e, dark, noise, rng, binning)
+            return self._finish_effects(e, dark_e, noise, rng, binning)
         if noise:
             e = sen.add_noise(e, rng)
         if binning is None:
@@ -1004,12 +1004,18 @@ class LBLInstrument:
         return self._bin(e, binning, sen.full_well)
 
     def _finish_effects(
-        self, e: NDArray, dark_e: NDArray, noise: bool, rng: np.random.Generator | None, binning
+        self,
+        e: NDArray,
+        dark_e: NDArray | None,
+        noise: bool,
+        rng: np.random.Generator | None,
+        binning,
     ) -> tuple[NDArray[np.uint16], FisheyeLens]:
         """:meth:`_finish` for a sensor with effects (:attr:`Sensor.ideal_readout` false or
         charge effects on): blooming and smear of the expected charge (``dark_e``: its dark
-        part, which smear does not follow), then :meth:`Sensor.readout` (noise, full-well
-        clip, offsets) and the ADC with no further clip."""
+        part, which smear does not follow; None: no dark part), then
+        :meth:`Sensor.readout` (noise, full-well clip, offsets) and the ADC with no further
+        clip."""
         sen = self.sensor
         h, w = self.lens.height, self.lens.width
         e = sen.spread(np.asarray(e, dtype=np.float64).reshape(h, w), dark_e)

@@ -145,6 +145,8 @@ def _num(value: Any, name: str, lo: float = 0.0, lo_open: bool = False, hi: floa
 #: are float64 maps of the whole array)
 MAX_ARRAY_SIDE = 16384
 MAX_ARRAY_PIXELS = 1 << 26
+#: most pixels :meth:`Sensor.frames` returns at once (2 GiB of uint16)
+MAX_FRAMES_PIXELS = 1 << 30
 
 #: typical magnitudes of the sensor effects of a realistic instrument (an interline-transfer
 #: CCD camera with an overflow drain, as imaging gonioreflectometers use); the source of each
@@ -717,6 +719,11 @@ class Sensor:
         if not isinstance(n, int | np.integer) or isinstance(n, bool) or not 1 <= n <= 100_000:
             raise ValueError(f"n must be an integer in [1, 100000], got {n!r}")
         lam = self.expected_electrons(photons, exposure)
+        if int(n) * lam.size > MAX_FRAMES_PIXELS:
+            raise ValueError(
+                f"n = {n} frames of {lam.shape[1]} x {lam.shape[0]} pixels is "
+                f"{int(n) * lam.size} pixels, more than the {MAX_FRAMES_PIXELS} allowed at once"
+            )
         gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         out = np.empty((int(n), *lam.shape), dtype=np.uint16)
         for k in range(int(n)):

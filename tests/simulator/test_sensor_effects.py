@@ -237,6 +237,8 @@ def test_frames_are_independent_reproducible_and_follow_the_model():
         s.frames(1.0, 0.0)
     with pytest.raises(ValueError, match="n must"):
         s.frames(1.0, 0.01, 0)
+    with pytest.raises(ValueError, match="more than the"):
+        s.frames(1.0, 0.01, 100_000)
     with pytest.raises(ValueError, match="array_shape"):
         Sensor().frames(1.0, 0.01)
 
