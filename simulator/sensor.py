@@ -728,12 +728,14 @@ class Sensor:
         """
         if not isinstance(n, int | np.integer) or isinstance(n, bool) or not 1 <= n <= 100_000:
             raise ValueError(f"n must be an integer in [1, 100000], got {n!r}")
-        lam = self.expected_electrons(photons, exposure)
-        if int(n) * lam.size > MAX_FRAMES_PIXELS:
+        shape = np.shape(photons) or self.array_shape or (1, 1)
+        size = math.prod(shape)
+        if int(n) * size > MAX_FRAMES_PIXELS:
             raise ValueError(
-                f"n = {n} frames of {lam.shape[1]} x {lam.shape[0]} pixels is "
-                f"{int(n) * lam.size} pixels, more than the {MAX_FRAMES_PIXELS} allowed at once"
+                f"n = {n} frames of {size} pixels each is {int(n) * size} pixels, more than "
+                f"the {MAX_FRAMES_PIXELS} allowed at once"
             )
+        lam = self.expected_electrons(photons, exposure)
         gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         out = np.empty((int(n), *lam.shape), dtype=np.uint16)
         for k in range(int(n)):
