@@ -13,6 +13,8 @@ time with and without it and whether the image is unchanged. Then:
   rotations} = 84 brackets, 120 frames at 640 × 480), noise on and off, wall and CPU time;
 * one bracket rendered once and composed per stop vs plan + a separate capture per stop
   (the pre-fast-bracket way), and that the frames are identical;
+* the sensor effects: ms per capture with each effect of ``Sensor`` alone at its realistic
+  magnitude and all of them, as ratios to the ideal sensor;
 * the noise: time of the compiled draw vs numpy's exact Poisson + normal on a 640 × 480
   image (and the noise + ADC kernel alone, and the compiled normal generator against numba's
   ``Generator.standard_normal``), and the mean, variance and skewness of both draws against
@@ -32,6 +34,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
+from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -318,6 +321,57 @@ def bench_noise(repeat):
     return out
 
 
+def bench_sensor_effects(repeat):
+    """CPU ms per 640 x 480 rolled-brass capture (f/2: the specular peak saturates, so
+    blooming has work), noise on and off, for the ideal sensor, each sensor effect alone at
+    its realistic magnitude, and all of them (``Sensor.realistic()``); ratios to the ideal
+    sensor in the same run, and whether the ideal sensor with a physical array of the image's
+    shape gives the same image (an effect "on" at no magnitude costs nothing)."""
+    from gonio.simulator import Sensor
+    from gonio.simulator.sensor import REALISTIC
+
+    from gonio import materials
+
+    model = materials.get("rolled_brass")
+    arr = {"array_shape": (480, 640)}
+    cases = {"ideal": Sensor(), "ideal, array_shape set": Sensor(**arr)}
+    groups = {
+        "charge_clip": ("charge_clip",),
+        "blooming": ("blooming",),
+        "smear": ("smear",),
+        "offsets (pixel, row, column)": ("offset_dsnu", "row_dsnu", "column_dsnu"),
+        "hot pixels": ("hot_pixels", "hot_pixel_dark"),
+    }
+    for label, names in groups.items():
+        cases[label] = Sensor(**arr, **{n: REALISTIC[n] for n in names})
+    cases["realistic (all)"] = Sensor.realistic()
+    # the cases interleaved (one call of each per round), so a change of the machine's load
+    # affects them alike; CPU time of this process, median over the rounds
+    fns, images = {}, {}
+    for label, sen in cases.items():
+        inst = _fresh((640, 480), sensor=sen)
+        for noise in (False, True):
+            fn = partial(inst.capture, model, TH, f_number=2.0, rng=1, noise=noise)
+            fn()  # warm (JIT, caches)
+            fns[label, "noise_on" if noise else "noise_off"] = fn
+        images[label] = inst.capture(model, TH, f_number=2.0, rng=1)[0]
+    cpu: dict = {key: [] for key in fns}
+    for _ in range(max(1, repeat)):
+        for key, fn in fns.items():
+            c0 = time.process_time()
+            fn()
+            cpu[key].append(time.process_time() - c0)
+    out = {label: {} for label in cases}
+    for (label, k), ts in cpu.items():
+        out[label][k] = float(np.median(ts)) * 1e3
+    base = out["ideal"]
+    for label, row in out.items():
+        for k in ("noise_off", "noise_on"):
+            row[f"{k}_ratio"] = row[k] / base[k]
+        row["same_image_as_ideal"] = bool(np.array_equal(images[label], images["ideal"]))
+    return out
+
+
 def _tv_distance(lam, sigma, gain):
     """Exact total-variation distance between the DN histograms (DN = rint(e / gain)) of
     Poisson(lam) + N(0, sigma²) and of the skew-corrected normal the sensor draws."""
@@ -444,6 +498,13 @@ def main(argv=None):
               f"   var {dv[0]:+5.1f} | {dv[1]:+5.1f}   skew {dg[0]:+5.1f} | {dg[1]:+5.1f}"
               f"   (skew model {m['model_skew']:.4f}, fast {m['fast_skew']:.4f},"
               f" exact {m['exact_skew']:.4f})")  # fmt: skip
+    fx = bench_sensor_effects(args.repeat)
+    print("\nsensor effects, 640x480 rolled brass at f/2 (CPU ms, median; ratio to the ideal"
+          " sensor in this run):")  # fmt: skip
+    for label, r in fx.items():
+        print(f"  {label:<30} noise off {r['noise_off']:6.2f} ms ({r['noise_off_ratio']:4.2f}x)"
+              f"  noise on {r['noise_on']:6.2f} ms ({r['noise_on_ratio']:4.2f}x)"
+              f"  image = ideal's: {r['same_image_as_ideal']}")  # fmt: skip
     tv = noise_tv_table()
     print("\nTV distance of DN histograms, approximated vs exact draw (gains 0.61, 1, 2.5,"
           " 10 e-/DN; lambda 0.05..1e4 e-):")  # fmt: skip
@@ -452,7 +513,7 @@ def main(argv=None):
         print(f"  read noise {r['read_noise']:4g} e-: normal from {r['threshold_e']:g} e-, worst "
               f"TV where used {used:.1e}, at lambda >= 30 {hi:.1e}")  # fmt: skip
     out = {"sizes": results, "bracket": br, "bracket_reuse": reuse, "campaign_stage": camp,
-           "noise": nz, "noise_tv": tv}  # fmt: skip
+           "noise": nz, "noise_tv": tv, "sensor_effects": fx}  # fmt: skip
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=2)

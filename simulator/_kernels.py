@@ -66,6 +66,8 @@ from numba import njit
 
 __all__ = [
     "BLOCK",
+    "adc_charge",
+    "bloom_columns",
     "compose_float",
     "compose_float_runs",
     "compose_u16",
@@ -76,6 +78,8 @@ __all__ = [
     "noise_u16",
     "plan_masks",
     "plan_scene",
+    "readout_float",
+    "readout_u16",
     "seed_state",
     "standard_normals",
     "ward_cone",
@@ -505,6 +509,143 @@ def noise_u16(
         for k in range(eb.size):
             o[k] = _adc(eb[k], full_well, inv_gain, black, max_dn)
     state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _readout_block(
+    lb, z, threshold, sigma, clip, full_well, lo, o, s0, s1, s2, s3
+):  # pragma: no cover
+    """Noisy, clipped electrons of one block (:func:`readout_float`) into ``o``."""
+    s0, s1, s2, s3 = _noise_block(lb, z, threshold, sigma, o, s0, s1, s2, s3)
+    if clip:
+        for k in range(lb.size):
+            v = lb[k]
+            if v >= lo:
+                if v >= threshold:
+                    zz, s0, s1, s2, s3 = _normal(s0, s1, s2, s3)
+                    q = _cf(max(v, 0.0), 0.0, zz)
+                else:
+                    q, s0, s1, s2, s3 = exact_shot_read(max(v, 0.0), 0.0, s0, s1, s2, s3)
+                q = q if q < full_well else full_well
+                if sigma > 0.0:
+                    zz, s0, s1, s2, s3 = _normal(s0, s1, s2, s3)
+                    q += sigma * zz
+                o[k] = q
+    else:
+        for k in range(o.size):
+            e = o[k]
+            o[k] = e if e < full_well else full_well
+    return s0, s1, s2, s3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def readout_float(lam, state, threshold, sigma, clip, full_well, out):  # pragma: no cover
+    """Noisy electrons at the ADC's input: :func:`noise_float` followed by the full-well
+    clip; with ``clip`` the clip acts on the charge, BEFORE the read noise.
+
+    With ``clip``, a pixel whose mean is below ``full_well - 8·sqrt(full_well) - 1`` passes
+    the full well with probability < 1e-15, so its joint shot + read draw stands; the others
+    draw the shot noise alone (the skew-corrected normal with no read variance from
+    ``threshold`` on, else the exact count), clip it at ``full_well`` and add ``sigma·z``.
+    """
+    s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
+    n = lam.size
+    z = np.empty(BLOCK)
+    lo = full_well - 8.0 * math.sqrt(full_well) - 1.0
+    for b0 in range(0, n, BLOCK):
+        b1 = min(b0 + BLOCK, n)
+        s0, s1, s2, s3 = _readout_block(
+            lam[b0:b1], z, threshold, sigma, clip, full_well, lo, out[b0:b1], s0, s1, s2, s3
+        )
+    state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def readout_u16(
+    lam, state, threshold, sigma, clip, full_well, off, inv_gain, black, max_dn, out
+):  # pragma: no cover - compiled
+    """:func:`readout_float`, plus the offsets ``off`` (electrons per pixel; an empty array:
+    none), then the linear ADC with no further clip, in one pass (the same random numbers,
+    so the same image as :func:`readout_float` and the ADC apart)."""
+    s0, s1, s2, s3 = state[0], state[1], state[2], state[3]
+    n = lam.size
+    z = np.empty(BLOCK)
+    e = np.empty(BLOCK)
+    lo = full_well - 8.0 * math.sqrt(full_well) - 1.0
+    has_off = off.size > 0
+    for b0 in range(0, n, BLOCK):
+        b1 = min(b0 + BLOCK, n)
+        eb = e[: b1 - b0]
+        s0, s1, s2, s3 = _readout_block(
+            lam[b0:b1], z, threshold, sigma, clip, full_well, lo, eb, s0, s1, s2, s3
+        )
+        o = out[b0:b1]
+        if has_off:
+            ob = off[b0:b1]
+            for k in range(eb.size):
+                o[k] = _adc(eb[k] + ob[k], math.inf, inv_gain, black, max_dn)
+        else:
+            for k in range(eb.size):
+                o[k] = _adc(eb[k], math.inf, inv_gain, black, max_dn)
+    state[0], state[1], state[2], state[3] = s0, s1, s2, s3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def adc_charge(lam, full_well, off, inv_gain, black, max_dn, out):  # pragma: no cover
+    """Noise-free readout: ``min(max(lam, 0), full_well)`` plus the offsets ``off`` (empty:
+    none), then the linear ADC with no further clip."""
+    if off.size > 0:
+        for i in range(lam.size):
+            v = lam[i]
+            v = v if v > 0.0 else 0.0
+            v = v if v < full_well else full_well
+            out[i] = _adc(v + off[i], math.inf, inv_gain, black, max_dn)
+    else:
+        for i in range(lam.size):
+            v = lam[i]
+            v = v if v > 0.0 else 0.0
+            v = v if v < full_well else full_well
+            out[i] = _adc(v, math.inf, inv_gain, black, max_dn)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def bloom_columns(e, full_well, frac):  # pragma: no cover - compiled
+    """Blooming on an expected-charge image ``e`` (rows, cols), in place: a fraction ``frac``
+    of each pixel's charge above ``full_well`` spills along its column, half towards each
+    end, filling every pixel it meets to ``full_well`` before moving on; what reaches the
+    end of the column leaves the array, the rest (``1 - frac``) goes to the overflow drain.
+    Rows are walked in order with one carry per column (sequential memory access)."""
+    h, w = e.shape
+    over = False
+    for r in range(h):
+        for c in range(w):
+            over |= e[r, c] > full_well
+    if not over:
+        return
+    half = np.empty((h, w))
+    for r in range(h):
+        for c in range(w):
+            x = e[r, c] - full_well
+            if x > 0.0:
+                half[r, c] = 0.5 * frac * x
+                e[r, c] = full_well
+            else:
+                half[r, c] = 0.0
+    carry = np.zeros(w)
+    for step in range(2):  # down the columns, then up
+        for c in range(w):
+            carry[c] = 0.0
+        for rr in range(h):
+            r = rr if step == 0 else h - 1 - rr
+            for c in range(w):
+                cr = carry[c]
+                if cr > 0.0:
+                    room = full_well - e[r, c]
+                    if room > 0.0:
+                        take = cr if cr < room else room
+                        e[r, c] += take
+                        carry[c] = cr - take
+                carry[c] += half[r, c]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -49,7 +49,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gonio.simulator.lenses import LENS_MODELS, FisheyeLens, make_lens
@@ -479,9 +479,39 @@ class LBLInstrument:
         if rs > 1.0:
             raise ValueError(f"rho_standard must be in (0, 1], got {rho_standard!r}")
         self.rho_standard = rs
-        self._bg_cache: dict[tuple, NDArray] = {}
-        self._resp: NDArray | None = None
-        self._resp_c: NDArray | None = None
+        self._drop_caches()
+
+    #: attributes that describe the instrument; every per-instrument cache derives from them
+    _CONFIG: ClassVar[frozenset[str]] = frozenset(
+        {"mirror", "lens", "sensor", "source", "background", "sample_radius", "rho_standard"}
+    )
+    _CONFIG_TYPES: ClassVar[dict[str, type]] = {
+        "sensor": Sensor,
+        "source": Source,
+        "background": Background,
+    }
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        """Reassigning a part of the instrument (``inst.sensor = Sensor(...)``) drops every
+        cache derived from the old parts, so the next capture is that of a fresh instrument
+        (the parts themselves are frozen dataclasses, so reassignment is the only change)."""
+        if name in self._CONFIG:
+            cls = self._CONFIG_TYPES.get(name)
+            if cls is not None and not isinstance(value, cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+            if name in self.__dict__ and self.__dict__[name] is not value:
+                self._drop_caches()
+        object.__setattr__(self, name, value)
+
+    def _drop_caches(self) -> None:
+        """Forget every per-instrument cache (the traced geometry is keyed by the optics
+        in the module-level cache and needs no dropping)."""
+        d = self.__dict__
+        d["_bg_cache"] = {}
+        d["_resp"] = None
+        d["_resp_c"] = None
+        for name in ("_resp_rays_cache", "_dark_map", "_ones_c", "_field_arrays"):
+            d.pop(name, None)
 
     # ------------------------------------------------------------------ description
     def to_dict(self) -> dict[str, Any]:
@@ -889,6 +919,11 @@ class LBLInstrument:
         """One frame of a scene: noise (or none), ADC, optional binning."""
         sen = self.sensor
         h, w = self.lens.height, self.lens.width
+        if not sen.ideal_readout or sen.has_charge_effects:
+            # a sensor with effects: charge effects, readout and ADC of the composed electrons
+            e = self._compose(sc, f_number)
+            dark_e = sc.dark * sc.exposure if sen.smear > 0.0 else None  # smear needs it
+            return self._finish_effects(e, dark_e, noise, rng, binning)
         if not noise and skip_noise_draws and binning is None and sen.linear and sc.delta is None:
             # no random draws, ADC fused into the render pass
             return self._compose(sc, f_number, digitise=True).reshape(h, w), self.lens
@@ -942,15 +977,19 @@ class LBLInstrument:
         """Dark-current map, electrons per second (flat, cached)."""
         if getattr(self, "_dark_map", None) is None:
             g = self.geometry
-            _, dsnu = self.sensor.maps(g.height, g.width)
-            self._dark_map = (dsnu * self.sensor.dark_current).ravel()
+            self._dark_map = self.sensor.dark_map(g.height, g.width).ravel()
         return self._dark_map
 
     # ------------------------------------------------------------------ capture
     def _finish(
-        self, e: NDArray, noise: bool, rng: np.random.Generator, binning, kernel: bool = True
-    ) -> tuple[NDArray[np.uint16], FisheyeLens]:
+        self, e: NDArray, noise: bool, rng: np.random.Generator, binning, kernel: bool = True,
+        dark_e: NDArray | None = None,
+    ) -> tuple[NDArray[np.uint16], FisheyeLens]:  # fmt: skip
+        """Noise, ADC and binning of expected electrons ``e`` (flat); ``dark_e``: their dark
+        part (smear follows the rest; default: the instrument's dark map at no exposure)."""
         sen = self.sensor
+        if not sen.ideal_readout or sen.has_charge_effects:
+            return self._finish_effects(e, dark_e, noise, rng, binning)
         if noise:
             e = sen.add_noise(e, rng)
         if binning is None:
@@ -962,10 +1001,36 @@ class LBLInstrument:
             else:
                 img = sen.digitise(e)
             return img.reshape(self.lens.height, self.lens.width), self.lens
+        return self._bin(e, binning, sen.full_well)
+
+    def _finish_effects(
+        self,
+        e: NDArray,
+        dark_e: NDArray | None,
+        noise: bool,
+        rng: np.random.Generator | None,
+        binning,
+    ) -> tuple[NDArray[np.uint16], FisheyeLens]:
+        """:meth:`_finish` for a sensor with effects (:attr:`Sensor.ideal_readout` false or
+        charge effects on): blooming and smear of the expected charge (``dark_e``: its dark
+        part, which smear does not follow; None: no dark part), then
+        :meth:`Sensor.readout` (noise, full-well clip, offsets) and the ADC with no further
+        clip."""
+        sen = self.sensor
+        h, w = self.lens.height, self.lens.width
+        e = sen.spread(np.asarray(e, dtype=np.float64).reshape(h, w), dark_e)
+        if binning is None:
+            return sen.readout_dn(e, rng, noise=noise), self.lens
+        return self._bin(sen.readout(e, rng, noise=noise), binning, math.inf)
+
+    def _bin(self, e: NDArray, binning, clip_e: float) -> tuple[NDArray[np.uint16], FisheyeLens]:
+        """Area-average binning to ``binning = (width, height)`` of electrons ``e`` clipped at
+        ``clip_e``, then black level, rounding and the ADC's range."""
         import cv2
 
+        sen = self.sensor
         bw, bh = binning
-        x = np.minimum(e, sen.full_well) * (1.0 / sen.gain)
+        x = np.minimum(e, clip_e) * (1.0 / sen.gain)
         if not sen.linear:
             xm = sen._x_max
             x = xm * (np.clip(x, 0.0, xm) / xm) ** sen.response_gamma
@@ -1102,6 +1167,76 @@ class LBLInstrument:
             meta["rays_per_pixel"] = int(rays_per_pixel)
         return meta
 
+    # ------------------------------------------------------------------ calibration captures
+    def capture_dark(
+        self,
+        *,
+        exposure: float = 0.01,
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+        binning: tuple[int, int] | bool | None = None,
+    ) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+        """A shutter-closed dark frame: no light reaches the sensor, only the dark current
+        (with its nonuniformity and hot pixels), the offsets and the read noise — the dark
+        image a laboratory records for dark subtraction and the sensor's DSNU
+        (EMVA 1288 R4.0, dark measurements of Sec. 6-8).
+
+        The side-car has ``calibration = "dark"``, ``shutter = "closed"`` and
+        ``photons_per_pixel = 0``.
+        """
+        return self._calibration_capture("dark", 0.0, exposure, rng, noise, binning)
+
+    def capture_flat(
+        self,
+        photons_per_pixel: float,
+        *,
+        exposure: float = 0.01,
+        rng: int | np.random.Generator | None = None,
+        noise: bool = True,
+        binning: tuple[int, int] | bool | None = None,
+    ) -> tuple[NDArray[np.uint16], dict[str, Any]]:
+        """A flat field: the lens removed and the sensor lit by an integrating sphere with
+        ``photons_per_pixel`` photons per pixel during the exposure (a uniform irradiance, as
+        a calibrated sphere and radiometer give it), the EMVA 1288 set-up for gain, PRNU and
+        the photon transfer curve (R4.0 Sec. 6.1, 6.5).
+
+        The side-car has ``calibration = "flat_field"``, ``shutter = "open"`` and
+        ``photons_per_pixel`` (what the laboratory's radiometer reports).
+        """
+        p = _check_positive(photons_per_pixel, "photons_per_pixel")
+        return self._calibration_capture("flat_field", p, exposure, rng, noise, binning)
+
+    def _calibration_capture(self, kind, photons, exposure, rng, noise, binning):
+        exposure = _check_positive(exposure, "exposure")
+        binning = self._check_binning(binning)
+        gen, seed = _rng_and_seed(rng) if noise else (None, None)
+        h, w = self.lens.height, self.lens.width
+        dark_e = self._dark() * exposure
+        e = dark_e
+        if photons > 0.0:
+            prnu, _ = self.sensor.maps(h, w)
+            e = (self.sensor.qe * photons) * prnu.ravel() + dark_e
+        img, lens = self._finish(e, noise, gen, binning, dark_e=dark_e)
+        meta = self.to_dict()
+        meta["full_lens"] = meta["lens"]
+        meta["lens"] = lens.to_dict()
+        meta.update(
+            {
+                "calibration": kind,
+                "sample": kind,
+                "shutter": "closed" if kind == "dark" else "open",
+                "photons_per_pixel": float(photons),
+                "exposure_s": exposure,
+                "seed": seed,
+                "noise": bool(noise),
+                "binning": list(binning) if binning else None,
+                "shape": list(img.shape),
+                "dtype": str(img.dtype),
+                "units": "DN",
+            }
+        )
+        return img, meta
+
     # ------------------------------------------------------------------ bands
     def capture_bands(
         self,
@@ -1151,7 +1286,7 @@ class LBLInstrument:
                 e = self._electrons(kind, model, theta_i, phi_i, exposure, f_number, bands[i], None)
                 if grey and evaluate_once:
                     shared = e.copy()
-            img, lens = self._finish(e, noise, gens[i], None)
+            img, lens = self._finish(e, noise, gens[i], None, dark_e=self._dark() * exposure)
             meta = self.metadata(
                 kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, None,
                 bands[i], None, lens, img,
@@ -1390,6 +1525,18 @@ def reproduce(
     """Capture again from a capture's metadata (the BRDF is rebuilt from ``meta["brdf"]``
     unless ``sample`` is given; a plain callable cannot be rebuilt and must be passed)."""
     inst = LBLInstrument.from_metadata(meta)
+    if meta.get("calibration") in ("dark", "flat_field"):
+        if meta.get("seed") is None and meta.get("noise"):
+            raise ValueError("the capture used a caller's Generator; its seed was not recorded")
+        kw = {
+            "exposure": meta["exposure_s"],
+            "rng": meta.get("seed"),
+            "noise": meta["noise"],
+            "binning": tuple(meta["binning"]) if meta.get("binning") else None,
+        }
+        if meta["calibration"] == "dark":
+            return inst.capture_dark(**kw)
+        return inst.capture_flat(meta["photons_per_pixel"], **kw)
     if sample is None:
         if meta["sample"] == "standard":
             sample = STANDARD

@@ -737,13 +737,16 @@ LBL_MATERIAL = "rolled_brass"
 SHARP_WARD = {"rho_d": 0.05, "rho_s": 0.3, "alpha_x": 0.01, "alpha_y": 0.02}
 
 
-def _instrument(mirror: str = "ellipsoid", width: int = 640, height: int = 480) -> Any:
-    """A cached simulated LBL instrument (its traced geometry is kept between runs)."""
-    key = (mirror, width, height)
+def _instrument(
+    mirror: str = "ellipsoid", width: int = 640, height: int = 480, sensor: Any = None
+) -> Any:
+    """A cached simulated LBL instrument (its traced geometry is kept between runs);
+    ``sensor``: a :class:`~gonio.simulator.Sensor` (default: the instrument's default)."""
+    key = (mirror, width, height, sensor)
     if key not in _INSTRUMENTS:
         from gonio.simulator import LBLInstrument
 
-        _INSTRUMENTS[key] = LBLInstrument(mirror=mirror, width=width, height=height)
+        _INSTRUMENTS[key] = LBLInstrument(mirror=mirror, width=width, height=height, sensor=sensor)
     return _INSTRUMENTS[key]
 
 
@@ -761,6 +764,7 @@ def lbl_pipeline(
     noise: bool = True,
     seed: int = 0,
     residual: str = "absolute",
+    sensor: Any = None,
 ) -> dict[str, float]:
     """Capture → reduce → fit on the simulated LBL instrument; the errors of the fit.
 
@@ -770,8 +774,9 @@ def lbl_pipeline(
     :func:`gonio.calibration.reduce.reduce_capture` (``method``, ``thinning``; a ``thinning``
     dict with ``select=True`` uses :func:`~gonio.calibration.reduce.reduce_selected` with the
     dict's other options) and the
-    concatenated samples fitted with :func:`gonio.fit.fit`. Returns :func:`brdf_errors` plus
-    ``n_samples``.
+    concatenated samples fitted with :func:`gonio.fit.fit`. ``sensor``: the camera's
+    :class:`~gonio.simulator.Sensor` (default: the instrument's). Returns
+    :func:`brdf_errors` plus ``n_samples``.
     """
     from gonio import fit, materials
     from gonio.brdf import BRDF, create
@@ -784,7 +789,7 @@ def lbl_pipeline(
         truth = create("ward", **material)
     else:
         truth = materials.get(material)
-    inst = _instrument(mirror, *size)
+    inst = _instrument(mirror, *size, sensor)
     tables = []
     for j, th in enumerate(theta_i_deg):
         ti = math.radians(th)
@@ -956,6 +961,54 @@ for _knob in (
     ),
 ):
     register_knob(_knob)
+
+
+def _sensor_opts(setting: str) -> dict[str, Any]:
+    """The sensor of a ``sensor_effects`` setting: the ideal sensor, one effect alone at its
+    realistic magnitude (:data:`gonio.simulator.sensor.REALISTIC`), or all of them."""
+    from gonio.simulator import Sensor
+    from gonio.simulator.sensor import REALISTIC, REALISTIC_ARRAY_SHAPE
+
+    if setting not in _SENSOR_EFFECTS:
+        raise ValueError(
+            f"sensor_effects setting {setting!r}; expected one of {list(_SENSOR_EFFECTS)}"
+        )
+    names = _SENSOR_EFFECTS[setting]
+    opts: dict[str, Any] = {"material": dict(SHARP_WARD)}
+    if names == ("all",):
+        return {**opts, "sensor": Sensor.realistic()}
+    kw = {n: REALISTIC[n] for n in names}
+    if kw:
+        kw["array_shape"] = REALISTIC_ARRAY_SHAPE
+    return {**opts, "sensor": Sensor(**kw)}
+
+
+_SENSOR_EFFECTS = {
+    "ideal": (),
+    "charge_clip": ("charge_clip",),
+    "blooming": ("blooming",),
+    "smear": ("smear",),
+    "offsets": ("offset_dsnu", "row_dsnu", "column_dsnu"),
+    "hot_pixels": ("hot_pixels", "hot_pixel_dark"),
+    "realistic": ("all",),
+}
+
+register_knob(
+    Knob(
+        "sensor_effects",
+        "the camera's sensor effects (EMVA 1288 terms), each alone at its realistic "
+        "magnitude, and all of them (Sensor.realistic()): charge clipped at the full well "
+        "before the read noise, blooming, smear, offset patterns, hot pixels; a sharp Ward "
+        "lobe (α = 0.01/0.02, bracketed over 6 stops, the wider ones saturating the peak), "
+        "θi = 20°, 50°, reduced without any sensor correction (time: the whole pipeline)",
+        settings=tuple(_SENSOR_EFFECTS),
+        quick_settings=("ideal", "realistic"),
+        run=_lbl_knob(_sensor_opts),
+        quick_run=_lbl_knob(lambda s: {**_sensor_opts(s), "size": (320, 240)}, quick=True),
+        needs=(*_LBL_NEEDS, "gonio.simulator.sensor:REALISTIC"),
+        prepare=_warm_lbl,
+    )
+)
 
 #: the rays-per-pixel knob's image size (small pixels would hide the sub-pixel effect less)
 _RAYS_SIZE = (160, 120)
