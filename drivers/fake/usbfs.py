@@ -64,7 +64,7 @@ import usb.core
 from gonio.drivers.fake.usb import FakeUsbBackend, _Handle
 from gonio.drivers.fake.usbdev import FakeUsbDevice
 
-__all__ = ["PRELOAD", "UsbfsBus", "UsbfsUnavailable", "require"]
+__all__ = ["PRELOAD", "UsbfsBus", "UsbfsUnavailable", "ensure_preloaded", "require"]
 
 PRELOAD = "libumockdev-preload.so.0"
 
@@ -128,6 +128,27 @@ def require() -> Any:
     if not hasattr(UMockdev, "IoctlBase"):
         raise UsbfsUnavailable("umockdev is older than 0.16 (no UMockdev.IoctlBase)")
     return UMockdev
+
+
+def ensure_preloaded() -> None:
+    """Run this process under umockdev's preload library, re-executing it if it is not.
+
+    A bus in such a process also sends the hotplug uevents (``remove`` / ``add``) a running
+    libusb program needs to see an unplug and a replug; elsewhere it works without them.
+    """
+    require()
+    if PRELOAD in os.environ.get("LD_PRELOAD", "").split():
+        return
+    import ctypes.util
+    import sys
+
+    if ctypes.util.find_library("umockdev-preload") is None:
+        raise UsbfsUnavailable(f"{PRELOAD} is missing: apt-get install umockdev")
+    pre = os.environ.get("LD_PRELOAD", "")
+    env = dict(os.environ, LD_PRELOAD=f"{PRELOAD} {pre}".strip())
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, sys.orig_argv, env)
 
 
 # -- the URBs of one open file -----------------------------------------------------------------
@@ -293,6 +314,40 @@ class UsbfsBus:
         """``subprocess.run(argv, env=self.env(), **kwargs)``."""
         kwargs["env"] = self.env(kwargs.get("env"))
         return subprocess.run(list(argv), **kwargs)
+
+    def run_until(self, argv: Sequence[str], stop: threading.Event) -> int:
+        """Run ``argv`` on the bus until it exits (its exit code; 128 + N for signal N) or
+        ``stop`` is set (then it is terminated)."""
+        try:
+            proc = subprocess.Popen(list(argv), env=self.env())
+        except OSError as exc:
+            raise ValueError(f"{' '.join(argv)!r}: cannot start it: {exc}") from None
+        try:
+            while proc.poll() is None:
+                if stop.wait(0.1):
+                    proc.terminate()
+                    break
+            try:
+                rc = proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                rc = proc.wait()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        return 128 - rc if rc < 0 else rc
+
+    def record(self, names: Mapping[str, FakeUsbDevice]) -> dict[str, Any]:
+        """What ``gonio devices serve --libusb`` prints: nodes, environment, hotplug."""
+        env = self.env({})
+        return {
+            "device": "libusb",
+            "nodes": {k: self.devnode(dev) for k, dev in names.items()},
+            "env": f"LD_PRELOAD={env['LD_PRELOAD']} UMOCKDEV_DIR={env['UMOCKDEV_DIR']}",
+            "umockdev_dir": self._root,
+            "hotplug": self.hotplug,
+        }
 
     def devnode(self, fake: FakeUsbDevice) -> str | None:
         """The device node of ``fake`` now (None while it is unplugged)."""
