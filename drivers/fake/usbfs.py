@@ -48,7 +48,6 @@ umockdev, ``UMockdevIoctlBase`` / ``UMockdevIoctlData`` (since 0.16).
 from __future__ import annotations
 
 import array
-import contextlib
 import errno
 import os
 import struct
@@ -56,7 +55,7 @@ import subprocess
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -101,7 +100,7 @@ URB_SHORT_NOT_OK = 0x01
 # submits each bulk transfer as one URB and reaps the URBs a disconnect completed
 CAPABILITIES = 0x01 | 0x02 | 0x04 | 0x10
 USB_SPEED_HIGH = 3
-_ERRNO = {-7: errno.ETIMEDOUT, -9: errno.EPIPE, -4: errno.ENODEV, -8: errno.EOVERFLOW}
+IDLE_POLL = 0.05  # s between looks at an empty IN queue (packets queued from outside)
 
 
 class UsbfsUnavailable(RuntimeError):
@@ -292,6 +291,8 @@ class UsbfsBus:
         self._ep_queue: dict[tuple[int, int], deque[tuple[_Fd, _Urb]]] = {}
         self._ctx: Any = None  # the test bed's worker main context (ioctls run there)
         self._tick: Any = None
+        self._tick_at = 0.0
+        self._devnum = 1  # the last address handed out (the kernel's round robin)
         self._stop = threading.Event()
         self._testbed = self._umockdev.Testbed.new()
         self.hotplug = bool(self._umockdev.in_mock_environment())  # after: it stats /sys
@@ -351,9 +352,18 @@ class UsbfsBus:
 
     def devnode(self, fake: FakeUsbDevice) -> str | None:
         """The device node of ``fake`` now (None while it is unplugged)."""
+        node = self._node_of(fake)
+        return None if node is None else node.devnode
+
+    def address(self, fake: FakeUsbDevice) -> int | None:
+        """The bus address (``devnum``) of ``fake`` now (None while it is unplugged)."""
+        node = self._node_of(fake)
+        return None if node is None else node.devnum
+
+    def _node_of(self, fake: FakeUsbDevice) -> _Node | None:
         with self._lock:
             node = self._nodes.get(self.fakes.index(fake))
-            return None if node is None or node.gone else node.devnode
+            return None if node is None or node.gone else node
 
     def close(self) -> None:
         """Stop answering, remove the devices and the test bed."""
@@ -373,7 +383,7 @@ class UsbfsBus:
     # -- plug state ---------------------------------------------------------------------------
     def _plug(self, k: int) -> None:
         dev = self.fakes[k]
-        devnum = dev.address % 127 + 1 if dev.address > 127 else dev.address
+        devnum = self._next_address()
         port = k + 1
         syspath = f"/sys/devices/usb{self.bus}/{self.bus}-{port}"
         node = _Node(
@@ -385,6 +395,16 @@ class UsbfsBus:
         self._uevent(syspath, "add")
         self._nodes[k] = node
         self.stats["plugged"] += 1
+
+    def _next_address(self) -> int:
+        """The next free address 2..127, round robin as the kernel assigns them (so a
+        replugged device comes back at a new address)."""
+        used = {n.devnum for n in self._nodes.values()}
+        for _ in range(126):
+            self._devnum = self._devnum % 127 + 1
+            if self._devnum >= 2 and self._devnum not in used:
+                return self._devnum
+        raise RuntimeError("no free USB address on the bus (126 devices)")
 
     def _uevent(self, syspath: str, action: str) -> None:
         """Tell the programs' udev monitors (libusb hotplug). umockdev sends uevents through
@@ -425,8 +445,11 @@ class UsbfsBus:
     def handle(self, node: _Node, client: Any) -> bool:
         request = client.get_request()
         name = REQ.get(request)
-        self.stats[name or f"unknown 0x{request:08x}"] += 1
         with self._lock:
+            self.stats[name or f"unknown 0x{request:08x}"] += 1
+            if self._stop.is_set():
+                client.complete(-1, errno.ENODEV)
+                return True
             if self._ctx is None:
                 from gi.repository import GLib
 
@@ -507,7 +530,7 @@ class UsbfsBus:
         if fd.claimed and value != fd.node.dev.configuration:
             raise _Errno(errno.EBUSY)
         self._backend.set_configuration(self._handle(fd), max(value, 0))
-        self._testbed.set_attribute(fd.node.syspath, "bConfigurationValue", f"{value or ''}\n")
+        self._set_config_attr(fd.node, value)
         return 0
 
     def _setinterface(self, fd: _Fd, client: Any) -> int:
@@ -549,8 +572,13 @@ class UsbfsBus:
         n = self._backend.ctrl_transfer(self._handle(fd), bm, req, value, index, buf, 1000)
         self.stats["control"] += 1
         if (bm & 0x60) == 0 and req == 9:  # SET_CONFIGURATION through ep0
-            self._testbed.set_attribute(fd.node.syspath, "bConfigurationValue", f"{value or ''}\n")
-        return int(n or 0) if n is not None else len(payload)
+            self._set_config_attr(fd.node, value)
+        return len(payload) if n is None else int(n)
+
+    def _set_config_attr(self, node: _Node, value: int) -> None:
+        """sysfs ``bConfigurationValue``: where libusb reads the active configuration."""
+        text = f"{value}\n" if value > 0 else "\n"
+        self._testbed.set_attribute(node.syspath, "bConfigurationValue", text)
 
     # -- URBs -----------------------------------------------------------------------------------
     def _submiturb(self, fd: _Fd, client: Any) -> int:
@@ -607,7 +635,7 @@ class UsbfsBus:
             else:
                 actual = self._control_out(fd, bm, req, value, index, buf[8 : 8 + length])
         except usb.core.USBError as exc:
-            urb.status = -(exc.errno or _ERRNO.get(exc.backend_error_code, errno.EPIPE))
+            urb.status = -(exc.errno or errno.EPIPE)
             actual = 0
         self._finish(fd, urb, actual=actual)
 
@@ -661,7 +689,7 @@ class UsbfsBus:
                 self._finish(fd, urb)
                 return None
             if pkt is None:
-                return ready_at if ready_at is not None else time.monotonic() + 0.05
+                return ready_at if ready_at is not None else time.monotonic() + IDLE_POLL
             urb.data += pkt
             self.stats["packets in"] += 1
             self.stats["bytes in"] += len(pkt)
@@ -736,21 +764,22 @@ class UsbfsBus:
         from gi.repository import GLib
 
         if self._tick is not None:
+            if self._tick_at <= wake:
+                return  # the armed tick comes first anyway
             self._tick.destroy()
         ms = max(0, int((wake - time.monotonic()) * 1000 + 0.999))
-        self._tick = GLib.Timeout(ms)
+        self._tick, self._tick_at = GLib.Timeout(ms), wake
         self._tick.set_callback(self._on_tick)
         self._tick.attach(self._ctx)
 
     def _next_wake(self) -> float | None:
-        wake = self._pump()
+        """The earliest of: a packet becoming ready, a held reap's deadline, and (for a
+        blocking reap) the next look at the plug state."""
+        times = [self._pump()]
         for fd in self._fds.values():
-            if fd.held is not None and fd.held[1] is not None:
-                wake = fd.held[1] if wake is None else min(wake, fd.held[1])
-            if fd.held is not None and fd.held[1] is None and fd.node.dev is not None:
-                poll = time.monotonic() + self.plug_poll
-                wake = poll if wake is None else min(wake, poll)
-        return wake
+            if fd.held is not None:
+                times.append(fd.held[1] or time.monotonic() + self.plug_poll)
+        return min((t for t in times if t is not None), default=None)
 
     def _on_tick(self, *_: Any) -> bool:
         with self._lock:
@@ -792,15 +821,3 @@ def _make_handler(umockdev: Any, bus: UsbfsBus, node: _Node) -> Any:
             return bus.handle(node, client)
 
     return Handler()
-
-
-@contextlib.contextmanager
-def running(
-    fakes: Sequence[FakeUsbDevice] | Mapping[str, FakeUsbDevice], **kw: Any
-) -> Iterator[UsbfsBus]:
-    """``with running(fakes) as bus:`` — a :class:`UsbfsBus` closed on exit."""
-    bus = UsbfsBus(fakes, **kw)
-    try:
-        yield bus
-    finally:
-        bus.close()
