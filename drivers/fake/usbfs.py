@@ -28,10 +28,12 @@ with a ``remove`` uevent; when the device comes back (``reconnect_after``) it is
 its new address with an ``add`` uevent, so libusb's hotplug list finds it again.
 
 The emulated node always polls ready (it is a plain file), so libusb's event loop asks
-``REAPURBNDELAY`` again at once when nothing has completed. To keep a waiting program from
-spinning, an empty ``REAPURBNDELAY`` is answered ``EAGAIN`` only after ``reap_hold`` seconds
-(or at once with the next URB that completes in that time): a program waiting on a long
-integration or a camera event makes at most ``1 / reap_hold`` ioctls per second.
+``REAPURBNDELAY`` again at once when nothing has completed. libusb also reaps until
+``EAGAIN`` after every URB it gets; that first empty reap is answered at once, but a second
+empty reap in a row (the program is polling, not draining) is held up to ``reap_hold``
+seconds, or until a URB completes, before ``EAGAIN``: a program waiting on a long
+integration or a camera event makes about ``1 / reap_hold`` ioctls per second instead of
+spinning.
 
 Needs umockdev >= 0.16 with its GObject typelib and PyGObject (Debian: ``umockdev``,
 ``gir1.2-umockdev-1.0``; ``pip install gonio[libusb]``); :func:`require` says what is
@@ -172,6 +174,7 @@ class _Fd:
     pending: dict[int, _Urb] = field(default_factory=dict)
     done: deque[_Urb] = field(default_factory=deque)
     held: tuple[Any, float | None] | None = None  # a reap waiting: (client, deadline)
+    drained: bool = False  # the last reap found nothing: the program is polling, not draining
     claimed: set[int] = field(default_factory=set)
 
 
@@ -728,7 +731,8 @@ class UsbfsBus:
         if fd.done or gone:
             self._deliver(fd, client)
             return
-        if not block and self.reap_hold == 0:
+        if not block and (self.reap_hold == 0 or not fd.drained):
+            fd.drained = True  # libusb reaps until EAGAIN after each URB: answer that at once
             client.complete(-1, errno.EAGAIN)
             return
         deadline = None if block else time.monotonic() + self.reap_hold
@@ -742,6 +746,7 @@ class UsbfsBus:
             client.complete(-1, errno.ENODEV if gone else errno.EAGAIN)
             return
         urb = fd.done.popleft()
+        fd.drained = False
         slot = client.get_arg().resolve(0, 8)
         slot.update(0, struct.pack("<Q", urb.addr))
         raw = slot.resolve(0, URB_SIZE)
