@@ -9,31 +9,14 @@ gphoto2, pyusb's ``libusb1`` backend, python-seabreeze, any C program on libusb-
 its usbdevfs ioctls are answered live in this process by the same fakes and bench as the
 in-process pyusb backend (:mod:`gonio.drivers.fake.usb`).
 
-The ioctls answered are those libusb-1.0 uses on Linux: ``GET_CAPABILITIES``,
-``CLAIMINTERFACE``/``RELEASEINTERFACE``/``DISCONNECT_CLAIM``, ``SETCONFIGURATION``,
-``SETINTERFACE``, ``CLEAR_HALT``, ``RESET``, ``GETDRIVER``/``IOCTL`` (no kernel driver is
-ever bound), ``GET_SPEED``, ``CONTROL``, and control / bulk / interrupt URBs through
-``SUBMITURB``, ``DISCARDURB``, ``REAPURB`` and ``REAPURBNDELAY``. URBs complete as the
-kernel completes them: an IN URB collects packets until it is full or a short packet
-arrives (``-EREMOTEIO`` under ``USBDEVFS_URB_SHORT_NOT_OK``), a discarded URB comes back
-``-ENOENT`` with the bytes it already received, a babbling packet ``-EOVERFLOW``.
-
-The fakes' fault injection (:class:`~gonio.drivers.fake.faults.Faults`) reaches the program
-as on a real bus: ``usb_pipe_errors`` stall the endpoint (the URB completes ``-EPIPE``; the
-endpoint stays halted until ``CLEAR_HALT``); ``usb_timeouts`` make the device NAK (the URB
-stays pending until the program's own timeout discards it); an unplug (``unplug()`` or
-``disconnect_after_bytes``) completes every pending URB ``-ENODEV`` (partial data kept),
-makes further ioctls on the open file fail ``ENODEV`` and removes the sysfs device and node
-with a ``remove`` uevent; when the device comes back (``reconnect_after``) it is added at
-its new address with an ``add`` uevent, so libusb's hotplug list finds it again.
-
-The emulated node always polls ready (it is a plain file), so libusb's event loop asks
-``REAPURBNDELAY`` again at once when nothing has completed. libusb also reaps until
-``EAGAIN`` after every URB it gets; that first empty reap is answered at once, but a second
-empty reap in a row (the program is polling, not draining) is held up to ``reap_hold``
-seconds, or until a URB completes, before ``EAGAIN``: a program waiting on a long
-integration or a camera event makes about ``1 / reap_hold`` ioctls per second instead of
-spinning.
+The ioctls are answered by :class:`~gonio.drivers.fake.usbdevfs.Usbdevfs` (URBs, statuses,
+faults: see there). When a fake is unplugged (its ``unplug()`` or ``disconnect_after_bytes``)
+its sysfs device and node are removed with a ``remove`` uevent; when it comes back
+(``reconnect_after``) it is added at a new address with an ``add`` uevent, so libusb's
+hotplug list finds it again. umockdev sends uevents through libudev reading the test bed, so
+only a bus in a process under the preload library sends them (:func:`ensure_preloaded`, as
+``gonio devices serve --libusb`` does); elsewhere a running program sees the unplug as
+``ENODEV`` and a program started later finds the replugged device.
 
 Needs umockdev >= 0.16 with its GObject typelib and PyGObject (Debian: ``umockdev``,
 ``gir1.2-umockdev-1.0``; ``pip install gonio[libusb]``); :func:`require` says what is
@@ -41,68 +24,25 @@ missing.
 
 References
 ----------
-Linux kernel, ``include/uapi/linux/usbdevice_fs.h`` and ``drivers/usb/core/devio.c``
-(usbdevfs ioctls, URB life cycle and statuses); libusb-1.0, ``libusb/os/linux_usbfs.c``
-(which ioctls a libusb program issues and how it reads URB statuses); M. Pitt et al.,
-umockdev, ``UMockdevIoctlBase`` / ``UMockdevIoctlData`` (since 0.16).
+M. Pitt et al., umockdev, ``UMockdevTestbed`` (``add_from_string``, ``attach_ioctl``,
+``uevent``); Linux kernel, ``Documentation/ABI/stable/sysfs-bus-usb`` (the attributes).
 """
 
 from __future__ import annotations
 
-import array
-import errno
 import os
-import struct
 import subprocess
 import threading
-import time
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
-import usb.core
-from gonio.drivers.fake.usb import FakeUsbBackend, _Handle
 from gonio.drivers.fake.usbdev import FakeUsbDevice
+from gonio.drivers.fake.usbdevfs import Node, Usbdevfs
 
 __all__ = ["PRELOAD", "UsbfsBus", "UsbfsUnavailable", "ensure_preloaded", "require"]
 
 PRELOAD = "libumockdev-preload.so.0"
-
-# -- usbdevfs ABI (x86-64 / aarch64 layout: 8-byte pointers) -----------------------------------
-
-
-def _ioc(direction: int, nr: int, size: int) -> int:
-    return (direction << 30) | (size << 16) | (ord("U") << 8) | nr
-
-
-_W, _R = 1, 2
-URB_SIZE = 56  # struct usbdevfs_urb without iso descriptors
-REQ = {
-    _ioc(_R | _W, 0, 24): "CONTROL",
-    _ioc(_R, 4, 8): "SETINTERFACE",
-    _ioc(_R, 5, 4): "SETCONFIGURATION",
-    _ioc(_W, 8, 260): "GETDRIVER",
-    _ioc(_R, 10, URB_SIZE): "SUBMITURB",
-    _ioc(0, 11, 0): "DISCARDURB",
-    _ioc(_W, 12, 8): "REAPURB",
-    _ioc(_W, 13, 8): "REAPURBNDELAY",
-    _ioc(_R, 15, 4): "CLAIMINTERFACE",
-    _ioc(_R, 16, 4): "RELEASEINTERFACE",
-    _ioc(_R | _W, 18, 16): "IOCTL",
-    _ioc(0, 20, 0): "RESET",
-    _ioc(_R, 21, 4): "CLEAR_HALT",
-    _ioc(_R, 26, 4): "GET_CAPABILITIES",
-    _ioc(_R, 27, 264): "DISCONNECT_CLAIM",
-    _ioc(0, 31, 0): "GET_SPEED",
-}
-URB_TYPE_CONTROL, URB_TYPE_BULK, URB_TYPE_INTERRUPT = 2, 3, 1
-URB_SHORT_NOT_OK = 0x01
-# ZERO_PACKET | BULK_CONTINUATION | NO_PACKET_SIZE_LIM | REAP_AFTER_DISCONNECT: libusb then
-# submits each bulk transfer as one URB and reaps the URBs a disconnect completed
-CAPABILITIES = 0x01 | 0x02 | 0x04 | 0x10
-USB_SPEED_HIGH = 3
-IDLE_POLL = 0.05  # s between looks at an empty IN queue (packets queued from outside)
 
 
 class UsbfsUnavailable(RuntimeError):
@@ -150,45 +90,6 @@ def ensure_preloaded() -> None:
     sys.stdout.flush()
     sys.stderr.flush()
     os.execve(sys.executable, sys.orig_argv, env)
-
-
-# -- the URBs of one open file -----------------------------------------------------------------
-@dataclass
-class _Urb:
-    addr: int  # the URB's address in the client
-    type: int
-    ep: int
-    flags: int
-    capacity: int  # buffer_length (for control: setup packet included)
-    data: bytearray = field(default_factory=bytearray)  # IN: received so far
-    status: int = 0
-    actual: int = 0
-
-
-@dataclass
-class _Fd:
-    """One open ``/dev/bus/usb/...`` file of a client: its device and URBs."""
-
-    node: _Node
-    client: Any  # the UMockdev.IoctlClient (hashed by its GObject address)
-    pending: dict[int, _Urb] = field(default_factory=dict)
-    done: deque[_Urb] = field(default_factory=deque)
-    held: tuple[Any, float | None] | None = None  # a reap waiting: (client, deadline)
-    drained: bool = False  # the last reap found nothing: the program is polling, not draining
-    claimed: set[int] = field(default_factory=set)
-
-
-@dataclass
-class _Node:
-    """One enumeration of a fake: sysfs path, device node, address, generation."""
-
-    dev: FakeUsbDevice
-    generation: int
-    devnum: int
-    syspath: str
-    devnode: str
-    handler: Any = None
-    gone: bool = False
 
 
 def _sysfs_record(dev: FakeUsbDevice, bus: int, devnum: int, port: int) -> str:
@@ -284,17 +185,18 @@ class UsbfsBus:
         self._umockdev = require()
         self.fakes = devs
         self.bus = int(bus)
-        self.reap_hold = float(reap_hold)
         self.plug_poll = float(plug_poll)
         self.stats: Counter[str] = Counter()
-        self._backend = FakeUsbBackend(devs)
         self._lock = threading.RLock()
-        self._nodes: dict[int, _Node] = {}  # index in fakes -> current node
-        self._fds: dict[Any, _Fd] = {}  # IoctlClient -> open file (kept alive while open)
-        self._ep_queue: dict[tuple[int, int], deque[tuple[_Fd, _Urb]]] = {}
-        self._ctx: Any = None  # the test bed's worker main context (ioctls run there)
-        self._tick: Any = None
-        self._tick_at = 0.0
+        self.usbdevfs = Usbdevfs(
+            devs,
+            reap_hold=reap_hold,
+            plug_poll=plug_poll,
+            lock=self._lock,
+            stats=self.stats,
+            set_attribute=self._set_attribute,
+        )
+        self._nodes: dict[int, Node] = {}  # index in fakes -> current node
         self._devnum = 1  # the last address handed out (the kernel's round robin)
         self._stop = threading.Event()
         self._testbed = self._umockdev.Testbed.new()
@@ -363,16 +265,22 @@ class UsbfsBus:
         node = self._node_of(fake)
         return None if node is None else node.devnum
 
-    def _node_of(self, fake: FakeUsbDevice) -> _Node | None:
+    def _node_of(self, fake: FakeUsbDevice) -> Node | None:
         with self._lock:
             node = self._nodes.get(self.fakes.index(fake))
             return None if node is None or node.gone else node
+
+    @property
+    def reap_hold(self) -> float:
+        """Seconds a repeated empty ``REAPURBNDELAY`` is held (see :mod:`.usbdevfs`)."""
+        return self.usbdevfs.reap_hold
 
     def close(self) -> None:
         """Stop answering, remove the devices and the test bed."""
         self._stop.set()
         self._monitor.join(timeout=2)
         with self._lock:
+            self.usbdevfs.closed = True
             for k in list(self._nodes):
                 self._unplug_node(k)
             self._testbed = None
@@ -389,11 +297,11 @@ class UsbfsBus:
         devnum = self._next_address()
         port = k + 1
         syspath = f"/sys/devices/usb{self.bus}/{self.bus}-{port}"
-        node = _Node(
+        node = Node(
             dev, dev.generation, devnum, syspath, f"/dev/bus/usb/{self.bus:03d}/{devnum:03d}"
         )
         self._testbed.add_from_string(_sysfs_record(dev, self.bus, devnum, port))
-        node.handler = _make_handler(self._umockdev, self, node)
+        node.handler = _make_handler(self._umockdev, self.usbdevfs, node)
         self._testbed.attach_ioctl(node.devnode, node.handler)
         self._uevent(syspath, "add")
         self._nodes[k] = node
@@ -409,6 +317,10 @@ class UsbfsBus:
                 return self._devnum
         raise RuntimeError("no free USB address on the bus (126 devices)")
 
+    def _set_attribute(self, syspath: str, name: str, text: str) -> None:
+        if self._testbed is not None:
+            self._testbed.set_attribute(syspath, name, text)
+
     def _uevent(self, syspath: str, action: str) -> None:
         """Tell the programs' udev monitors (libusb hotplug). umockdev sends uevents through
         libudev reading the test bed, so only a process under the preload library can."""
@@ -421,9 +333,7 @@ class UsbfsBus:
         if node is None:
             return
         node.gone = True
-        for fd in self._fds.values():
-            if fd.node is node:
-                self._fail_fd(fd)
+        self.usbdevfs.fail_node(node)
         if self._testbed is not None:
             self._uevent(node.syspath, "remove")
             self._testbed.detach_ioctl(node.devnode)
@@ -444,385 +354,12 @@ class UsbfsBus:
                         if dev.present:
                             self._plug(k)
 
-    # -- ioctl dispatch (runs on the test bed's worker thread) ---------------------------------
-    def handle(self, node: _Node, client: Any) -> bool:
-        request = client.get_request()
-        name = REQ.get(request)
-        with self._lock:
-            self.stats[name or f"unknown 0x{request:08x}"] += 1
-            if self._stop.is_set():
-                client.complete(-1, errno.ENODEV)
-                return True
-            if self._ctx is None:
-                from gi.repository import GLib
 
-                self._ctx = GLib.MainContext.get_thread_default()
-            fd = self._fds.get(client)
-            if fd is None:
-                self._sweep()
-                fd = self._fds[client] = _Fd(node, client)
-            if name is None:
-                client.complete(-1, errno.ENOTTY)
-                return True
-            if name in ("REAPURB", "REAPURBNDELAY"):
-                self._reap(fd, client, block=name == "REAPURB")
-                return True
-            if fd.node.gone or not self._live(fd.node):
-                client.complete(-1, errno.ENODEV)
-                return True
-            try:
-                res = getattr(self, "_" + name.lower())(fd, client)
-            except usb.core.USBError as exc:
-                client.complete(-1, exc.errno or errno.EIO)
-                return True
-            except _Errno as exc:
-                client.complete(-1, exc.errno)
-                return True
-            client.complete(res, 0)
-            self._schedule()
-            return True
-
-    def _live(self, node: _Node) -> bool:
-        return node.dev.present and node.dev.generation == node.generation
-
-    def _handle(self, fd: _Fd) -> _Handle:
-        return _Handle(fd.node.dev, fd.node.generation)
-
-    # simple requests: each returns the ioctl's result or raises _Errno / USBError
-    def _get_capabilities(self, fd: _Fd, client: Any) -> int:
-        client.get_arg().resolve(0, 4).update(0, struct.pack("<I", CAPABILITIES))
-        return 0
-
-    def _get_speed(self, fd: _Fd, client: Any) -> int:
-        return USB_SPEED_HIGH
-
-    def _interface_arg(self, fd: _Fd, client: Any) -> int:
-        n = _u32(client.get_arg().resolve(0, 4))
-        if n not in {i.number for i in fd.node.dev.interfaces}:
-            raise _Errno(errno.EINVAL)
-        return n
-
-    def _claiminterface(self, fd: _Fd, client: Any) -> int:
-        n = self._interface_arg(fd, client)
-        self._sweep()
-        for other in self._fds.values():
-            if other is not fd and other.node is fd.node and n in other.claimed:
-                raise _Errno(errno.EBUSY)
-        fd.claimed.add(n)
-        return 0
-
-    _disconnect_claim = _claiminterface  # no kernel driver to detach: a plain claim
-
-    def _releaseinterface(self, fd: _Fd, client: Any) -> int:
-        n = self._interface_arg(fd, client)
-        if n not in fd.claimed:
-            raise _Errno(errno.EINVAL)
-        fd.claimed.discard(n)
-        return 0
-
-    def _getdriver(self, fd: _Fd, client: Any) -> int:
-        raise _Errno(errno.ENODATA)  # no kernel driver bound to any interface
-
-    def _ioctl(self, fd: _Fd, client: Any) -> int:
-        raise _Errno(errno.ENODATA)  # USBDEVFS_DISCONNECT / CONNECT: no driver to (re)bind
-
-    def _setconfiguration(self, fd: _Fd, client: Any) -> int:
-        value = struct.unpack("<i", bytes(client.get_arg().resolve(0, 4).retrieve()))[0]
-        if value not in (-1, 0, 1):
-            raise _Errno(errno.EINVAL)
-        if fd.claimed and value != fd.node.dev.configuration:
-            raise _Errno(errno.EBUSY)
-        self._backend.set_configuration(self._handle(fd), max(value, 0))
-        self._set_config_attr(fd.node, value)
-        return 0
-
-    def _setinterface(self, fd: _Fd, client: Any) -> int:
-        intf, alt = struct.unpack("<II", bytes(client.get_arg().resolve(0, 8).retrieve()))
-        self._backend.set_interface_altsetting(self._handle(fd), intf, alt)
-        return 0
-
-    def _clear_halt(self, fd: _Fd, client: Any) -> int:
-        ep = _u32(client.get_arg().resolve(0, 4)) & 0xFF
-        if ep not in fd.node.dev.endpoints:
-            raise _Errno(errno.ENOENT)
-        self._backend.clear_halt(self._handle(fd), ep)
-        return 0
-
-    def _reset(self, fd: _Fd, client: Any) -> int:
-        self._backend.reset_device(self._handle(fd))
-        return 0
-
-    def _control(self, fd: _Fd, client: Any) -> int:
-        """``USBDEVFS_CONTROL``: a synchronous control transfer."""
-        arg = client.get_arg().resolve(0, 24)
-        bm, req, value, index, length, _tmo = struct.unpack_from("<BBHHHI", bytes(arg.retrieve()))
-        if bm & 0x80:
-            data, n = self._control_in(fd, bm, req, value, index, length)
-            if n:
-                arg.resolve(16, n).update(0, data[:n])
-            return n
-        payload = bytes(arg.resolve(16, length).retrieve()) if length else b""
-        return self._control_out(fd, bm, req, value, index, payload)
-
-    def _control_in(self, fd: _Fd, bm: int, req: int, value: int, index: int, length: int):
-        buf = array.array("B", bytes(length))
-        n = self._backend.ctrl_transfer(self._handle(fd), bm, req, value, index, buf, 1000)
-        self.stats["control"] += 1
-        return buf.tobytes(), int(n)
-
-    def _control_out(self, fd: _Fd, bm: int, req: int, value: int, index: int, payload: bytes):
-        buf = array.array("B", payload)
-        n = self._backend.ctrl_transfer(self._handle(fd), bm, req, value, index, buf, 1000)
-        self.stats["control"] += 1
-        if (bm & 0x60) == 0 and req == 9:  # SET_CONFIGURATION through ep0
-            self._set_config_attr(fd.node, value)
-        return len(payload) if n is None else int(n)
-
-    def _set_config_attr(self, node: _Node, value: int) -> None:
-        """sysfs ``bConfigurationValue``: where libusb reads the active configuration."""
-        text = f"{value}\n" if value > 0 else "\n"
-        self._testbed.set_attribute(node.syspath, "bConfigurationValue", text)
-
-    # -- URBs -----------------------------------------------------------------------------------
-    def _submiturb(self, fd: _Fd, client: Any) -> int:
-        arg = client.get_arg()
-        raw = arg.resolve(0, URB_SIZE)
-        typ, ep, _st, flags, _buf, length = struct.unpack_from(
-            "<BBxxiIxxxxQi", bytes(raw.retrieve())
-        )
-        addr = raw.client_addr
-        dev = fd.node.dev
-        urb = _Urb(addr, typ, ep, flags, max(length, 0))
-        self.stats["urbs submitted"] += 1
-        if addr in fd.pending:
-            raise _Errno(errno.EINVAL)
-        if typ == URB_TYPE_CONTROL:
-            if length < 8:
-                raise _Errno(errno.EINVAL)
-            buf = raw.resolve(16, length)
-            self._complete_control(fd, urb, bytes(buf.retrieve()))
-            return 0
-        if typ not in (URB_TYPE_BULK, URB_TYPE_INTERRUPT):
-            raise _Errno(errno.EINVAL)  # isochronous: none of the fakes has such an endpoint
-        if ep not in dev.endpoints or dev.configuration == 0:
-            raise _Errno(errno.ENOENT)
-        fault = dev.transfer_fault(ep)
-        if fault == "nodev":
-            raise _Errno(errno.ENODEV)
-        if fault == "pipe":
-            urb.status = -errno.EPIPE
-            self._finish(fd, urb)
-            return 0
-        fd.pending[addr] = urb
-        if fault == "timeout":
-            return 0  # the device NAKs: pending until the program discards it
-        if ep & 0x80:
-            self._ep_queue.setdefault((id(dev), ep), deque()).append((fd, urb))
-            self._pump()
-            return 0
-        data = bytes(raw.resolve(16, length).retrieve()) if length > 0 else b""
-        del fd.pending[addr]
-        dev.accept_out(ep, data)
-        self.stats["bytes out"] += len(data)
-        self._finish(fd, urb, actual=len(data))
-        self._pump()  # the firmware may have queued an answer for a waiting IN URB
-        return 0
-
-    def _complete_control(self, fd: _Fd, urb: _Urb, buf: bytes) -> None:
-        bm, req, value, index, length = struct.unpack_from("<BBHHH", buf)
-        try:
-            if bm & 0x80:
-                data, n = self._control_in(fd, bm, req, value, index, min(length, urb.capacity - 8))
-                urb.data = bytearray(data[:n])
-                actual = n
-            else:
-                actual = self._control_out(fd, bm, req, value, index, buf[8 : 8 + length])
-        except usb.core.USBError as exc:
-            urb.status = -(exc.errno or errno.EPIPE)
-            actual = 0
-        self._finish(fd, urb, actual=actual)
-
-    def _finish(self, fd: _Fd, urb: _Urb, actual: int | None = None) -> None:
-        """Move ``urb`` to the completed queue (and answer a waiting reap)."""
-        fd.pending.pop(urb.addr, None)
-        urb.actual = len(urb.data) if actual is None else actual
-        if (
-            urb.status == 0
-            and urb.flags & URB_SHORT_NOT_OK
-            and urb.ep & 0x80
-            and urb.type != URB_TYPE_CONTROL
-            and urb.actual < urb.capacity
-        ):
-            urb.status = -errno.EREMOTEIO
-        fd.done.append(urb)
-        self.stats["urbs completed"] += 1
-        if fd.held is not None:
-            client, _ = fd.held
-            fd.held = None
-            self._deliver(fd, client)
-
-    def _pump(self) -> float | None:
-        """Move ready packets into waiting IN URBs; the next time a packet becomes ready."""
-        next_at: float | None = None
-        for queue in list(self._ep_queue.values()):
-            while queue:
-                fd, urb = queue[0]
-                if urb.addr not in fd.pending or fd.pending[urb.addr] is not urb:
-                    queue.popleft()  # discarded or failed meanwhile
-                    continue
-                at = self._fill(fd, urb)
-                if at is None and urb.addr not in fd.pending:
-                    queue.popleft()
-                    continue
-                if at is not None:
-                    next_at = at if next_at is None else min(next_at, at)
-                break
-        return next_at
-
-    def _fill(self, fd: _Fd, urb: _Urb) -> float | None:
-        """Collect packets for one IN URB; its next packet's ready time while it waits."""
-        dev = fd.node.dev
-        mp = dev.endpoints[urb.ep].max_packet
-        cap = urb.capacity
-        while True:
-            try:
-                pkt, ready_at = dev.poll_in(urb.ep, cap - len(urb.data))
-            except usb.core.USBError as exc:
-                urb.status = -(exc.errno or errno.EIO)
-                self._finish(fd, urb)
-                return None
-            if pkt is None:
-                return ready_at if ready_at is not None else time.monotonic() + IDLE_POLL
-            urb.data += pkt
-            self.stats["packets in"] += 1
-            self.stats["bytes in"] += len(pkt)
-            if not dev.present:
-                urb.status = -errno.ENODEV
-                self._finish(fd, urb)
-                return None
-            if len(pkt) < mp or len(urb.data) >= cap:
-                self._finish(fd, urb)
-                return None
-
-    def _discardurb(self, fd: _Fd, client: Any) -> int:
-        addr = struct.unpack("<Q", bytes(client.get_arg().retrieve()))[0]
-        urb = fd.pending.get(addr)
-        if urb is None:
-            raise _Errno(errno.EINVAL)  # already completed (or never submitted)
-        urb.status = -errno.ENOENT  # killed: what was received so far stays in the URB
-        self.stats["urbs discarded"] += 1
-        self._finish(fd, urb)
-        return 0
-
-    def _fail_fd(self, fd: _Fd) -> None:
-        """The device went away: every pending URB of ``fd`` completes ``-ENODEV``."""
-        for urb in list(fd.pending.values()):
-            urb.status = -errno.ENODEV
-            self._finish(fd, urb)
-        if fd.held is not None:
-            client, _ = fd.held
-            fd.held = None
-            self._deliver(fd, client)
-
-    def _reap(self, fd: _Fd, client: Any, block: bool) -> None:
-        gone = fd.node.gone or not self._live(fd.node)
-        if gone and fd.pending:
-            self._fail_fd(fd)
-        if fd.done or gone:
-            self._deliver(fd, client)
-            return
-        if not block and (self.reap_hold == 0 or not fd.drained):
-            fd.drained = True  # libusb reaps until EAGAIN after each URB: answer that at once
-            client.complete(-1, errno.EAGAIN)
-            return
-        deadline = None if block else time.monotonic() + self.reap_hold
-        fd.held = (client, deadline)
-        self._schedule()
-
-    def _deliver(self, fd: _Fd, client: Any) -> None:
-        """Answer a reap: the oldest completed URB, or ENODEV / EAGAIN."""
-        if not fd.done:
-            gone = fd.node.gone or not self._live(fd.node)
-            client.complete(-1, errno.ENODEV if gone else errno.EAGAIN)
-            return
-        urb = fd.done.popleft()
-        fd.drained = False
-        slot = client.get_arg().resolve(0, 8)
-        slot.update(0, struct.pack("<Q", urb.addr))
-        raw = slot.resolve(0, URB_SIZE)
-        raw.update(4, struct.pack("<i", urb.status))
-        raw.update(28, struct.pack("<i", urb.actual))
-        if urb.data and (urb.ep & 0x80 or urb.type == URB_TYPE_CONTROL):
-            off = 8 if urb.type == URB_TYPE_CONTROL else 0
-            raw.resolve(16, off + len(urb.data)).update(off, bytes(urb.data))
-        self.stats["urbs reaped"] += 1
-        client.complete(0, 0)
-
-    # -- timing: one GLib timeout on the worker context drives IN URBs and held reaps ----------
-    def _schedule(self) -> None:
-        """(Re)arm the tick for the earliest packet or held-reap deadline."""
-        if self._ctx is None:
-            return
-        wake = self._next_wake()
-        if wake is None:
-            return
-        from gi.repository import GLib
-
-        if self._tick is not None:
-            if self._tick_at <= wake:
-                return  # the armed tick comes first anyway
-            self._tick.destroy()
-        ms = max(0, int((wake - time.monotonic()) * 1000 + 0.999))
-        self._tick, self._tick_at = GLib.Timeout(ms), wake
-        self._tick.set_callback(self._on_tick)
-        self._tick.attach(self._ctx)
-
-    def _next_wake(self) -> float | None:
-        """The earliest of: a packet becoming ready, a held reap's deadline, and (for a
-        blocking reap) the next look at the plug state."""
-        times = [self._pump()]
-        for fd in self._fds.values():
-            if fd.held is not None:
-                times.append(fd.held[1] or time.monotonic() + self.plug_poll)
-        return min((t for t in times if t is not None), default=None)
-
-    def _on_tick(self, *_: Any) -> bool:
-        with self._lock:
-            self._tick = None
-            now = time.monotonic()
-            for fd in list(self._fds.values()):
-                if fd.held is not None and not self._live(fd.node):
-                    self._fail_fd(fd)
-            self._pump()
-            for fd in list(self._fds.values()):
-                if fd.held is not None and fd.held[1] is not None and fd.held[1] <= now:
-                    client, _ = fd.held
-                    fd.held = None
-                    self._deliver(fd, client)
-            self._schedule()
-        return False
-
-    def _sweep(self) -> None:
-        """Forget the files the programs closed (their claims and URBs go with them)."""
-        for client in [c for c in self._fds if not c.get_connected()]:
-            del self._fds[client]
-
-
-class _Errno(Exception):
-    def __init__(self, err: int) -> None:
-        super().__init__(os.strerror(err))
-        self.errno = err
-
-
-def _u32(data: Any) -> int:
-    return struct.unpack("<I", bytes(data.retrieve())[:4])[0]
-
-
-def _make_handler(umockdev: Any, bus: UsbfsBus, node: _Node) -> Any:
-    """An ``UMockdev.IoctlBase`` answering ``node``'s ioctls through ``bus``."""
+def _make_handler(umockdev: Any, usbdevfs: Usbdevfs, node: Node) -> Any:
+    """An ``UMockdev.IoctlBase`` answering ``node``'s ioctls through ``usbdevfs``."""
 
     class Handler(umockdev.IoctlBase):
         def do_handle_ioctl(self, client: Any) -> bool:
-            return bus.handle(node, client)
+            return usbdevfs.handle(node, client)
 
     return Handler()

@@ -7,6 +7,7 @@ their ioctls are answered in this process by the same fakes the pyusb backend us
 
 from __future__ import annotations
 
+import ctypes.util
 import json
 import re
 import shutil
@@ -28,6 +29,9 @@ try:
     usbfs.require()
 except usbfs.UsbfsUnavailable as exc:  # pragma: no cover - depends on the system packages
     pytest.skip(str(exc), allow_module_level=True)
+for lib in ("umockdev-preload", "usb-1.0"):
+    if ctypes.util.find_library(lib) is None:  # pragma: no cover - system packages
+        pytest.skip(f"lib{lib} is not installed", allow_module_level=True)
 
 
 def _bench() -> Bench:
