@@ -22,7 +22,7 @@ import usb.backend
 
 pytest.importorskip("gi")
 from gonio.drivers.fake import usb as fakeusb
-from gonio.drivers.fake import usbfs
+from gonio.drivers.fake import usbdevfs, usbfs
 from gonio.simulator.bench import Bench
 
 try:
@@ -384,3 +384,79 @@ def test_devices_serve_rejects_a_program_without_libusb_and_bad_faults(tmp_path)
     assert main(["devices", "serve", "--", "true"]) == 2
     assert main(["devices", "serve", "--fault", "usb2000plus.nonsense=1"]) == 2
     assert main(["devices", "serve", "--fault", "ptp.usb_timeouts=-3"]) == 2
+
+
+def test_raw_usbdevfs_ioctls_statuses_and_blocking_reap(rig, tmp_path):
+    """A client without libusb: the usbdevfs ioctls by hand (libc ioctl, ctypes structs)."""
+    bus, fakes, _, _ = rig
+    cam = fakes["ptp"]
+    cam.queue_in(0x81, bytes(range(200)) * 3)  # 600 bytes: ends in a short packet
+    got = _child(
+        bus,
+        tmp_path,
+        f"""
+        import ctypes, errno, json, os
+        libc = ctypes.CDLL(None, use_errno=True)  # the preloaded ioctl() comes first
+        libc.ioctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_void_p]
+        def ioctl(fd, req, arg):
+            if libc.ioctl(fd, req, arg) < 0:
+                raise OSError(ctypes.get_errno(), "ioctl")
+        class Urb(ctypes.Structure):
+            _fields_ = [("type", ctypes.c_ubyte), ("endpoint", ctypes.c_ubyte),
+                        ("status", ctypes.c_int), ("flags", ctypes.c_uint),
+                        ("buffer", ctypes.c_void_p), ("buffer_length", ctypes.c_int),
+                        ("actual_length", ctypes.c_int), ("start_frame", ctypes.c_int),
+                        ("number_of_packets", ctypes.c_int), ("error_count", ctypes.c_int),
+                        ("signr", ctypes.c_uint), ("usercontext", ctypes.c_void_p)]
+        def ioc(d, nr, size):
+            return (d << 30) | (size << 16) | (ord("U") << 8) | nr
+        SUBMIT, DISCARD = ioc(2, 10, ctypes.sizeof(Urb)), ioc(0, 11, 0)
+        REAP, REAPNDELAY, CLAIM, CAPS = ioc(1, 12, 8), ioc(1, 13, 8), ioc(2, 15, 4), ioc(2, 26, 4)
+        fd = os.open({bus.devnode(cam)!r}, os.O_RDWR)
+        out = {{"sizeof_urb": ctypes.sizeof(Urb)}}
+        caps = ctypes.c_uint(0)
+        ioctl(fd, CAPS, ctypes.byref(caps))
+        out["caps"] = caps.value
+        ioctl(fd, CLAIM, ctypes.byref(ctypes.c_uint(0)))
+        buf = (ctypes.c_ubyte * 4096)()
+        def submit(flags=0):
+            u = Urb(type=3, endpoint=0x81, flags=flags, buffer=ctypes.addressof(buf),
+                    buffer_length=4096)
+            ioctl(fd, SUBMIT, ctypes.byref(u))
+            return u
+        def reap(req):
+            p = ctypes.c_void_p(0)
+            try:
+                ioctl(fd, req, ctypes.byref(p))
+            except OSError as e:
+                return errno.errorcode[e.errno]
+            return p.value
+        u = submit(flags=1)  # USBDEVFS_URB_SHORT_NOT_OK
+        out["reaped_is_urb"] = reap(REAP) == ctypes.addressof(u)  # blocking reap
+        out["short"] = [u.status, u.actual_length, bytes(buf[: u.actual_length]).hex()]
+        out["empty"] = [reap(REAPNDELAY), reap(REAPNDELAY)]
+        v = submit()
+        ioctl(fd, DISCARD, ctypes.addressof(v))
+        out["discarded_is_urb"] = reap(REAP) == ctypes.addressof(v)
+        out["discarded"] = [v.status, v.actual_length]
+        try:
+            ioctl(fd, DISCARD, ctypes.addressof(v))
+        except OSError as e:
+            out["discard_again"] = errno.errorcode[e.errno]
+        try:
+            ioctl(fd, ioc(0, 99, 0), None)
+        except OSError as e:
+            out["unknown"] = errno.errorcode[e.errno]
+        os.close(fd)
+        print(json.dumps(out))
+        """,
+        header=False,
+    )
+    assert got["sizeof_urb"] == usbdevfs.URB_SIZE
+    assert got["caps"] == usbdevfs.CAPABILITIES
+    assert got["reaped_is_urb"] and got["discarded_is_urb"]
+    data = bytes(range(200)) * 3
+    assert got["short"] == [-errno_("EREMOTEIO"), 600, data.hex()]
+    assert got["empty"] == ["EAGAIN", "EAGAIN"]
+    assert got["discarded"] == [-errno_("ENOENT"), 0]
+    assert got["discard_again"] == "EINVAL" and got["unknown"] == "ENOTTY"
