@@ -478,14 +478,25 @@ class Usbdevfs:
         self._schedule()
 
     def _deliver(self, fd: _Fd, client: Any) -> None:
-        """Answer a reap: the oldest completed URB, or ENODEV / EAGAIN."""
+        """Answer a reap: the oldest completed URB, or ENODEV / EAGAIN.
+
+        Every answer first reads the program's pointer slot: a program killed while its reap
+        was held fails that read, and its file is forgotten (with its claims) instead of
+        being answered — umockdev would not notice, as nothing reads its socket meanwhile.
+        """
+        from gi.repository import GLib
+
+        try:
+            slot = client.get_arg().resolve(0, 8)
+        except GLib.Error:
+            self._forget(client)
+            return
         if not fd.done:
             gone = fd.node.gone or not self._live(fd.node)
             client.complete(-1, errno.ENODEV if gone else errno.EAGAIN)
             return
         urb = fd.done.popleft()
         fd.drained = False
-        slot = client.get_arg().resolve(0, 8)
         slot.update(0, struct.pack("<Q", urb.addr))
         raw = slot.resolve(0, URB_SIZE)
         raw.update(4, struct.pack("<i", urb.status))
@@ -543,7 +554,14 @@ class Usbdevfs:
     def _sweep(self) -> None:
         """Forget the files the programs closed (their claims and URBs go with them)."""
         for client in [c for c in self._fds if not c.get_connected()]:
-            del self._fds[client]
+            self._forget(client)
+
+    def _forget(self, client: Any) -> None:
+        fd = self._fds.pop(client, None)
+        if fd is not None:
+            fd.pending.clear()  # its queued IN URBs are skipped by _pump
+            fd.held = None
+            self.stats["files forgotten"] += 1
 
 
 class _Errno(Exception):

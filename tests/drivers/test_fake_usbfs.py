@@ -347,6 +347,39 @@ def test_waiting_client_costs_a_bounded_number_of_ioctls(rig, tmp_path):
     assert got["cpu"] < 0.5 * got["wall"], got
 
 
+def test_a_program_killed_while_waiting_leaves_no_claim_behind(rig, tmp_path):
+    """Ctrl-C on a program blocked in a reap: its interface claim must not outlive it."""
+    bus = rig[0]
+    waiter = subprocess.Popen(
+        [sys.executable, "-c", HEADER + WAIT_FOR_EVENT.format(timeout=20000)],
+        env=bus.env(),
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+    )
+    try:
+        assert waiter.stdout.readline().strip() == "waiting"
+        time.sleep(0.1)
+    finally:
+        waiter.kill()
+        waiter.wait()
+    got = _child(bus, tmp_path, WAIT_FOR_EVENT.format(timeout=200) + "print(json.dumps(out))")
+    assert got == {"timeout": errno_("ETIMEDOUT")}  # it claimed the interface: no EBUSY
+    assert bus.stats["files forgotten"] >= 1
+
+
+WAIT_FOR_EVENT = """
+d = usb.core.find(idVendor=0x1209, backend=be)
+d.set_configuration()
+print("waiting", flush=True)
+out = {{}}
+try:
+    d.read(0x83, 64, timeout={timeout})
+except usb.core.USBTimeoutError as e:
+    out["timeout"] = e.errno
+"""
+
+
 # -- the command line ------------------------------------------------------------------------
 def test_devices_serve_libusb_runs_a_program_that_sees_unplug_and_replug(tmp_path):
     """``gonio devices serve --libusb -- PROGRAM``: the bridge re-executes itself under the
