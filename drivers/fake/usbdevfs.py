@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import array
 import errno
+import logging
 import os
 import struct
 import threading
@@ -59,6 +60,8 @@ from gonio.drivers.fake.usb import FakeUsbBackend, _Handle
 from gonio.drivers.fake.usbdev import FakeUsbDevice
 
 __all__ = ["Node", "Usbdevfs"]
+
+_log = logging.getLogger(__name__)
 
 # -- usbdevfs ABI (x86-64 / aarch64 layout: 8-byte pointers) -----------------------------------
 
@@ -191,9 +194,9 @@ class Usbdevfs:
             if self.closed:
                 client.complete(-1, errno.ENODEV)
                 return True
-            if self._ctx is None:
-                from gi.repository import GLib
+            from gi.repository import GLib
 
+            if self._ctx is None:
                 self._ctx = GLib.MainContext.get_thread_default()
             fd = self._fds.get(client)
             if fd is None:
@@ -211,12 +214,18 @@ class Usbdevfs:
             try:
                 res = getattr(self, "_" + name.lower())(fd, client)
             except usb.core.USBError as exc:
-                client.complete(-1, exc.errno or errno.EIO)
-                return True
+                res, err = -1, exc.errno or errno.EIO
             except _Errno as exc:
-                client.complete(-1, exc.errno)
+                res, err = -1, exc.errno
+            except GLib.Error:  # the program went away while we read its memory
+                self._forget(client)
                 return True
-            client.complete(res, 0)
+            except Exception:  # a bug here must not leave the program hanging in ioctl()
+                _log.exception("usbdevfs %s on %s", name, node.devnode)
+                res, err = -1, errno.EIO
+            else:
+                err = 0
+            client.complete(res, err)
             self._schedule()
             return True
 
@@ -463,6 +472,8 @@ class Usbdevfs:
             self._deliver(fd, client)
 
     def _reap(self, fd: _Fd, client: Any, block: bool) -> None:
+        """``REAPURB`` / ``REAPURBNDELAY``: a completed URB now, or ENODEV, or EAGAIN now or
+        after ``reap_hold`` (see the module docstring); a blocking reap waits for a URB."""
         gone = fd.node.gone or not self._live(fd.node)
         if gone and fd.pending:
             self._fail_fd(fd)
@@ -536,19 +547,24 @@ class Usbdevfs:
         return min((t for t in times if t is not None), default=None)
 
     def _on_tick(self, *_: Any) -> bool:
+        """Move packets, fail the files of unplugged devices, answer expired held reaps."""
         with self._lock:
             self._tick = None
-            now = time.monotonic()
-            for fd in list(self._fds.values()):
-                if fd.held is not None and not self._live(fd.node):
-                    self._fail_fd(fd)
-            self._pump()
-            for fd in list(self._fds.values()):
-                if fd.held is not None and fd.held[1] is not None and fd.held[1] <= now:
-                    client, _ = fd.held
-                    fd.held = None
-                    self._deliver(fd, client)
-            self._schedule()
+            try:
+                now = time.monotonic()
+                for fd in list(self._fds.values()):
+                    if fd.held is not None and not self._live(fd.node):
+                        self._fail_fd(fd)
+                self._pump()
+                for fd in list(self._fds.values()):
+                    if fd.held is not None and fd.held[1] is not None and fd.held[1] <= now:
+                        client, _ = fd.held
+                        fd.held = None
+                        self._deliver(fd, client)
+            except Exception:  # keep ticking: other programs' URBs depend on it
+                _log.exception("usbdevfs tick")
+            finally:
+                self._schedule()
         return False
 
     def _sweep(self) -> None:
