@@ -147,7 +147,7 @@ def test_pyusb_libusb1_drives_ptp_camera_exactly_like_the_in_process_backend(rig
 
 
 @pytest.mark.skipif(shutil.which("gphoto2") is None, reason="gphoto2 is not installed")
-def test_gphoto2_detects_summarises_and_captures_the_rendered_image(rig, tmp_path):
+def test_gphoto2_detects_summarises_sets_f_number_and_captures_the_rendered_image(rig, tmp_path):
     import cv2
 
     bus, fakes, _, twin = rig
@@ -160,12 +160,16 @@ def test_gphoto2_detects_summarises_and_captures_the_rendered_image(rig, tmp_pat
     assert "Model: gonio simulated PTP camera" in summary.stdout
     assert "Serial Number: GONIO-CAM-0001" in summary.stdout
     assert "Enumeration [280,400,560,800,1100,1600,2200] value: f/8 (800)" in summary.stdout
+    setf = bus.run(["gphoto2", "--set-config", "f-number=5.6"], **run)  # SetDevicePropValue
+    assert setf.returncode == 0 and cam.f_number == 560, setf.stderr[-2000:]
     shot = bus.run(["gphoto2", "--capture-image-and-download", "--filename", "shot.tif"], **run)
     assert shot.returncode == 0, shot.stderr[-2000:]
     img = cv2.imread(str(tmp_path / "shot.tif"), cv2.IMREAD_UNCHANGED)
-    # the twin bench renders the same frame for the same state: exposure 0.01 s, f/8
-    want, _ = fakeusb.devices(twin)["ptp"].bench.render_image(cam.exposure * 1e-4, 8.0)
+    # the twin bench renders the same frame for the same state: exposure 0.01 s, f/5.6
+    twin_bench = fakeusb.devices(twin)["ptp"].bench
+    want, _ = twin_bench.render_image(cam.exposure * 1e-4, 5.6)
     assert img.dtype == np.uint16 and np.array_equal(img, want)
+    assert not np.array_equal(img, twin_bench.render_image(cam.exposure * 1e-4, 8.0)[0])
     assert cam.objects == {}  # gphoto2 deleted it after the download
 
 
@@ -214,6 +218,8 @@ def test_stall_is_epipe_until_clear_halt_and_timeout_is_the_clients_own(rig, tmp
             except usb.core.USBError as e:
                 out.setdefault("stall", []).append(e.errno)
         d.clear_halt(0x01)
+        d.set_interface_altsetting(0, 0)
+        d.reset()  # USBDEVFS_RESET; libusb claims the interface again afterwards
         d.write(0x01, b"\\xfe", timeout=500)
         out["status_len"] = len(d.read(0x81, 512, timeout=500))  # a short packet ends it
         try:
@@ -235,6 +241,7 @@ def test_stall_is_epipe_until_clear_halt_and_timeout_is_the_clients_own(rig, tmp
     assert got["overflow"] == errno_("EOVERFLOW")
     assert bus.stats["urbs discarded"] == 2  # the two timed-out URBs, discarded by libusb
     assert fakes["usb2000plus"].faults.log == ["usb_timeouts", "usb_pipe_errors"]
+    assert bus.stats["RESET"] == 1 and bus.stats["SETINTERFACE"] == 1
 
 
 def errno_(name: str) -> int:
