@@ -35,10 +35,16 @@ files when the bus sees the device unplugged; all state is guarded by the bus's 
 
 References
 ----------
-Linux kernel, ``include/uapi/linux/usbdevice_fs.h`` and ``drivers/usb/core/devio.c``
-(usbdevfs ioctls, URB life cycle and statuses); libusb-1.0, ``libusb/os/linux_usbfs.c``
-(which ioctls a libusb program issues and how it reads URB statuses); M. Pitt et al.,
-umockdev, ``UMockdevIoctlBase`` / ``UMockdevIoctlData`` (since 0.16).
+.. [usbdevfs] The Linux kernel, ``include/uapi/linux/usbdevice_fs.h`` (the ioctls and
+   ``struct usbdevfs_urb``) and ``drivers/usb/core/devio.c`` (URB life cycle and statuses).
+.. [libusb] libusb-1.0, version 1.0.26 (2022), ``libusb/os/linux_usbfs.c``: which ioctls a
+   libusb program issues, and how it reads URB statuses.
+.. [USB20] USB Implementers Forum, "Universal Serial Bus Specification", Revision 2.0
+   (2000), §5.8 (bulk transfers: a short packet ends one) and chapter 8 (the NAK and STALL
+   handshakes).
+.. [umockdev] M. Pitt and contributors, "umockdev: mock hardware devices for creating unit
+   tests", software, version 0.17 (2023): ``UMockdevIoctlBase``, ``UMockdevIoctlClient``,
+   ``UMockdevIoctlData`` (since 0.16).
 """
 
 from __future__ import annotations

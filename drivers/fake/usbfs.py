@@ -24,8 +24,11 @@ missing.
 
 References
 ----------
-M. Pitt et al., umockdev, ``UMockdevTestbed`` (``add_from_string``, ``attach_ioctl``,
-``uevent``); Linux kernel, ``Documentation/ABI/stable/sysfs-bus-usb`` (the attributes).
+.. [umockdev] M. Pitt and contributors, "umockdev: mock hardware devices for creating unit
+   tests", software, version 0.17 (2023): ``UMockdevTestbed`` (``add_from_string``,
+   ``attach_ioctl``, ``uevent``) and the preload library.
+.. [sysfs] The Linux kernel, ``Documentation/ABI/stable/sysfs-bus-usb`` (the USB device
+   attributes libusb and lsusb read) and ``drivers/usb/core/sysfs.c``.
 """
 
 from __future__ import annotations
