@@ -420,8 +420,8 @@ class Usbdevfs:
         for queue in list(self._ep_queue.values()):
             while queue:
                 fd, urb = queue[0]
-                if urb.addr not in fd.pending or fd.pending[urb.addr] is not urb:
-                    queue.popleft()  # discarded or failed meanwhile
+                if fd.pending.get(urb.addr) is not urb or not fd.client.get_connected():
+                    queue.popleft()  # discarded, failed, or its program closed the file
                     continue
                 at = self._fill(fd, urb)
                 if at is None and urb.addr not in fd.pending:

@@ -205,8 +205,10 @@ class UsbfsBus:
         self._testbed = self._umockdev.Testbed.new()
         self.hotplug = bool(self._umockdev.in_mock_environment())  # after: it stats /sys
         self._root = self._testbed.get_root_dir()
-        for k in range(len(devs)):
-            self._plug(k)
+        for k, dev in enumerate(devs):
+            dev.check_plugged()
+            if dev.present:  # an unplugged fake is added when it comes back
+                self._plug(k)
         self._monitor = threading.Thread(target=self._watch, name="usbfs-plug", daemon=True)
         self._monitor.start()
 

@@ -487,8 +487,9 @@ def test_raw_usbdevfs_ioctls_statuses_and_blocking_reap(rig, tmp_path):
             ioctl(fd, ioc(0, 99, 0), None)
         except OSError as e:
             out["unknown"] = errno.errorcode[e.errno]
-        os.close(fd)
-        print(json.dumps(out))
+        submit()  # left pending: the program exits without discarding it
+        print(json.dumps(out), flush=True)
+        os._exit(0)
         """,
         header=False,
     )
@@ -500,3 +501,6 @@ def test_raw_usbdevfs_ioctls_statuses_and_blocking_reap(rig, tmp_path):
     assert got["empty"] == ["EAGAIN", "EAGAIN"]
     assert got["discarded"] == [-errno_("ENOENT"), 0]
     assert got["discard_again"] == "EINVAL" and got["unknown"] == "ENOTTY"
+    cam.queue_in(0x81, b"after")  # the dead program's URB must not take it
+    time.sleep(3 * usbdevfs.IDLE_POLL)
+    assert cam.poll_in(0x81, 512) == (b"after", None)
