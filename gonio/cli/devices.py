@@ -234,32 +234,7 @@ def _serve(args) -> int:
     rc = 0
     try:
         for rec in records:
-            if args.json:
-                print(json.dumps(rec), file=out, flush=True)
-            elif rec["device"] == "esp300":
-                print(
-                    f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
-                    f"axes {rec['axes']}",
-                    file=out,
-                    flush=True,
-                )
-            elif rec["device"] == "bench":
-                print(
-                    f"bench: instrument {args.instrument}, material {args.material}, seed "
-                    f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop",
-                    file=out,
-                    flush=True,
-                )
-            elif rec["device"] == "libusb":
-                nodes = ", ".join(f"{k} {v}" for k, v in rec["nodes"].items())
-                print(f"libusb bus: {nodes}; programs run with: {rec['env']}", file=out, flush=True)
-            else:
-                print(
-                    f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
-                    f"process: gonio.drivers.fake.usb.connect({remote.address!r})",
-                    file=out,
-                    flush=True,
-                )
+            print(_describe(rec, args, name, remote.address), file=out, flush=True)
         if bus is not None and command:
             rc = bus.run_until(command, stop)
         else:
@@ -276,6 +251,29 @@ def _serve(args) -> int:
             srv.stop()
         remote.close()
     return rc
+
+
+def _describe(rec: dict, args, name: str, usb_server: str) -> str:
+    """One printed line for a record (its JSON with ``--json``)."""
+    if args.json:
+        return json.dumps(rec)
+    if rec["device"] == "esp300":
+        return (
+            f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
+            f"axes {rec['axes']}"
+        )
+    if rec["device"] == "bench":
+        return (
+            f"bench: instrument {args.instrument}, material {args.material}, seed "
+            f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop"
+        )
+    if rec["device"] == "libusb":
+        nodes = ", ".join(f"{k} {v}" for k, v in rec["nodes"].items())
+        return f"libusb bus: {nodes}; programs run with: {rec['env']}"
+    return (
+        f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
+        f"process: gonio.drivers.fake.usb.connect({usb_server!r})"
+    )
 
 
 def run(args) -> int:
