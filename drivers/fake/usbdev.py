@@ -270,24 +270,68 @@ class FakeUsbDevice(abc.ABC):
     def on_out(self, ep: int, data: bytes) -> None:
         """Firmware: handle one OUT transfer."""
 
-    def _fault_transfer(self, ep: int, timeout_ms: int) -> None:
-        """The faults a bulk transfer on ``ep`` may meet: unplugged, timeout, halted/stall."""
+    def transfer_fault(self, ep: int) -> str | None:
+        """The fault the next transfer on ``ep`` meets, consuming its count: ``"nodev"``
+        (unplugged), ``"timeout"`` (the device NAKs until the host gives up), ``"pipe"`` (a
+        stall; the endpoint stays halted until ``clear_halt``), or None."""
         if not self.present:
-            raise usb_error("nodev")
+            return "nodev"
         if self.faults.take("usb_timeouts"):
-            time.sleep(max(timeout_ms, 1) / 1000.0)
-            raise usb_error("timeout")
+            return "timeout"
         if ep in self._halted:
-            raise usb_error("pipe")
+            return "pipe"
         if self.faults.take("usb_pipe_errors"):
             self._halted.add(ep)
-            raise usb_error("pipe")
+            return "pipe"
+        return None
+
+    def _fault_transfer(self, ep: int, timeout_ms: int) -> None:
+        """Raise the fault a bulk transfer on ``ep`` meets (a timeout after ``timeout_ms``)."""
+        kind = self.transfer_fault(ep)
+        if kind == "timeout":
+            time.sleep(max(timeout_ms, 1) / 1000.0)
+        if kind is not None:
+            raise usb_error(kind)
 
     def bulk_out(self, ep: int, data: bytes, timeout_ms: int) -> int:
         self._fault_transfer(ep, timeout_ms)
+        return self.accept_out(ep, data)
+
+    def accept_out(self, ep: int, data: bytes) -> int:
+        """Hand one OUT transfer that met no transfer fault to the firmware; its length."""
         data = self.faults.filter_command(bytes(data))
         self.on_out(ep, data)
         return len(data)
+
+    def poll_in(self, ep: int, room: int) -> tuple[bytes | None, float | None]:
+        """Take the next packet of ``ep`` without waiting.
+
+        Returns ``(packet, None)`` when the head packet is ready (it leaves the queue; under
+        ``disconnect_after_bytes`` it may be cut short and the device unplugged after it:
+        check :attr:`present`), else ``(None, ready_at)`` with the monotonic time the head
+        packet becomes ready, or ``(None, None)`` when nothing is queued. Raises the
+        ``nodev`` error when unplugged and ``overflow`` (the packet is consumed, as babble
+        is on the bus) when the packet is longer than ``room``.
+        """
+        with self._cond:
+            if not self.present:
+                raise usb_error("nodev")
+            q = self._in[ep]
+            if not q:
+                return None, None
+            now = time.monotonic()
+            if q[0][0] > now:
+                return None, q[0][0]
+            _, pkt = q.popleft()
+            if len(pkt) > room:
+                raise usb_error("overflow")
+            keep, unplug = self.faults.split_for_disconnect(pkt)
+            if unplug:
+                self.present = False
+                self._back_at = now + self.faults.reconnect_after
+                self._reset_queues()
+                self._cond.notify_all()
+            return keep, None
 
     def bulk_in(self, ep: int, size: int, timeout_ms: int) -> bytes:
         """Collect packets until ``size`` bytes, a short packet, or the timeout."""
@@ -295,29 +339,18 @@ class FakeUsbDevice(abc.ABC):
         mp = self.endpoints[ep].max_packet
         deadline = None if timeout_ms == 0 else time.monotonic() + timeout_ms / 1000.0
         out = bytearray()
-        q = self._in[ep]
         with self._cond:
             while True:
-                if not self.present:
-                    raise usb_error("nodev")
-                now = time.monotonic()
-                if q and q[0][0] <= now:
-                    _, pkt = q[0]
-                    if len(out) + len(pkt) > size:
-                        q.popleft()
-                        raise usb_error("overflow")
-                    q.popleft()
-                    keep, unplug = self.faults.split_for_disconnect(pkt)
-                    out += keep
-                    if unplug:
-                        self.present = False
-                        self._back_at = now + self.faults.reconnect_after
-                        self._reset_queues()
+                pkt, ready_at = self.poll_in(ep, size - len(out))
+                if pkt is not None:
+                    out += pkt
+                    if not self.present:
                         raise usb_error("nodev")
                     if len(pkt) < mp or len(out) >= size:
                         return bytes(out)
                     continue
-                wait = 0.05 if not q else max(q[0][0] - now, 0.0)
+                now = time.monotonic()
+                wait = 0.05 if ready_at is None else max(ready_at - now, 0.0)
                 if deadline is not None:
                     if now >= deadline:
                         raise usb_error("timeout")

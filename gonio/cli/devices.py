@@ -9,10 +9,19 @@ The Cornell bench is ``gonio.campaign.drivers.cornell_fake_bench(material, seed,
 external driver script (``gonio.campaign.drivers.open_served_rig`` on the printed records, then
 ``run_cornell_measurements``) measures the same samples as the in-process simulation with
 the same seed.
+
+With ``--libusb`` the USB fakes are also put on an emulated Linux USB bus (umockdev's preload
+library, :mod:`gonio.drivers.fake.usbfs`) that every libusb-1.0 program sees — ``lsusb``,
+``gphoto2``, pyusb's ``libusb1`` backend, python-seabreeze, C programs: ``gonio devices serve
+--libusb -- gphoto2 --capture-image-and-download`` runs the program on the bus and returns its
+exit code; without a program the environment to start programs with is printed and the bus
+is served until interrupted. ``--fault usb2000plus.usb_pipe_errors=1`` arms a fault of a fake
+(:class:`gonio.drivers.fake.faults.Faults`) before anything connects.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -56,6 +65,51 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="one JSON object per device per line (flushed when ready)",
     )
+    p.add_argument(
+        "--libusb",
+        action="store_true",
+        help="also put the USB fakes on an emulated usbdevfs bus for libusb-1.0 programs "
+        "(needs umockdev, gir1.2-umockdev-1.0 and PyGObject: pip install 'gonio[libusb]')",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="DEVICE.FAULT=N",
+        help="arm a fault of a USB fake, e.g. usb2000plus.disconnect_after_bytes=5000 "
+        "(repeatable; faults: see gonio.drivers.fake.faults.Faults)",
+    )
+    p.add_argument(
+        "program",
+        nargs=argparse.REMAINDER,
+        help="with --libusb: a program (after --) to run on the bus; its exit code is returned",
+    )
+
+
+def _parse_faults(specs: list[str]) -> list[tuple[str, str, float]]:
+    """``--fault DEVICE.FAULT=VALUE`` settings as (device, fault, value), checked."""
+    import dataclasses
+
+    from gonio.drivers.fake.faults import Faults
+
+    names = {f.name for f in dataclasses.fields(Faults) if not f.name.startswith("_")} - {"log"}
+    out = []
+    for spec in specs:
+        target, _, value = spec.partition("=")
+        dev, _, fault = target.partition(".")
+        if dev not in ("usb2000plus", "ptp") or fault not in names or not value:
+            raise ValueError(
+                f"--fault={spec!r}: expected DEVICE.FAULT=VALUE with DEVICE usb2000plus or ptp "
+                f"and FAULT one of {sorted(names)}"
+            )
+        try:
+            number = float(value) if fault in ("reply_delay", "reconnect_after") else int(value)
+        except ValueError:
+            raise ValueError(f"--fault={spec!r}: {value!r} is not a number") from None
+        if number < 0 and not (fault == "delayed_replies" and number == -1):
+            raise ValueError(f"--fault={spec!r}: expected a value >= 0")
+        out.append((dev, fault, number))
+    return out
 
 
 def _serve(args) -> int:
@@ -78,6 +132,17 @@ def _serve(args) -> int:
             raise ValueError(
                 f"--material={args.material!r}: expected one of {', '.join(materials.names())}"
             )
+    faults = _parse_faults(args.fault)
+    command = args.program[1:] if args.program[:1] == ["--"] else args.program
+    if command and not args.libusb:
+        raise ValueError(f"{' '.join(command)!r}: a program to run needs --libusb")
+    if args.libusb:
+        from gonio.drivers.fake.usbfs import UsbfsUnavailable, ensure_preloaded
+
+        try:
+            ensure_preloaded()  # re-executes this command under umockdev's preload library
+        except UsbfsUnavailable as exc:
+            raise ValueError(f"--libusb: {exc}") from None
     noise = args.noise == "on"
     if args.instrument == "cornell":
         bench, _inst = cornell_fake_bench(
@@ -116,6 +181,20 @@ def _serve(args) -> int:
             srv.stop()
         raise
     fakes = devices(name)
+    for dev, fault, number in faults:
+        setattr(fakes[dev].faults, fault, number)
+    bus = None
+    if args.libusb:
+        from gonio.drivers.fake.usbfs import UsbfsBus
+
+        try:
+            bus = UsbfsBus(fakes)
+        except BaseException:
+            for srv in servers:
+                srv.stop()
+            remote.close()
+            raise
+        records.append(bus.record(fakes))
     records += [
         {
             "device": "usb2000plus",
@@ -151,46 +230,57 @@ def _serve(args) -> int:
     # devices serve &` in a script) inherits SIGINT *ignored* and gets no KeyboardInterrupt
     previous = {sig: signal.signal(sig, lambda *_: stop.set())
                 for sig in (signal.SIGINT, signal.SIGTERM)}  # fmt: skip
+    out = sys.stderr if command else sys.stdout  # the program's own output stays clean
+    rc = 0
     try:
         for rec in records:
-            if args.json:
-                print(json.dumps(rec), flush=True)
-            elif rec["device"] == "esp300":
-                print(
-                    f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
-                    f"axes {rec['axes']}",
-                    flush=True,
-                )
-            elif rec["device"] == "bench":
-                print(
-                    f"bench: instrument {args.instrument}, material {args.material}, seed "
-                    f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop",
-                    flush=True,
-                )
-            else:
-                print(
-                    f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
-                    f"process: gonio.drivers.fake.usb.connect({remote.address!r})",
-                    flush=True,
-                )
-        while not stop.wait(0.5):
-            pass
+            print(_describe(rec, args, name, remote.address), file=out, flush=True)
+        if bus is not None and command:
+            rc = bus.run_until(command, stop)
+        else:
+            while not stop.wait(0.5):
+                pass
     except KeyboardInterrupt:
         pass
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if bus is not None:
+            bus.close()
         for srv in servers:
             srv.stop()
         remote.close()
-    return 0
+    return rc
+
+
+def _describe(rec: dict, args, name: str, usb_server: str) -> str:
+    """One printed line for a record (its JSON with ``--json``)."""
+    if args.json:
+        return json.dumps(rec)
+    if rec["device"] == "esp300":
+        return (
+            f"esp300 ({rec['controller']})  pty {rec['port']}   tcp {rec['url']}   "
+            f"axes {rec['axes']}"
+        )
+    if rec["device"] == "bench":
+        return (
+            f"bench: instrument {args.instrument}, material {args.material}, seed "
+            f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop"
+        )
+    if rec["device"] == "libusb":
+        nodes = ", ".join(f"{k} {v}" for k, v in rec["nodes"].items())
+        return f"libusb bus: {nodes}; programs run with: {rec['env']}"
+    return (
+        f"{rec['device']:<12} pyusb backend {name!r} in this process; from another "
+        f"process: gonio.drivers.fake.usb.connect({usb_server!r})"
+    )
 
 
 def run(args) -> int:
     if getattr(args, "action", None) != "serve":
         print(
             "usage: gonio devices serve [--instrument lbl|cornell] [--material M] [--seed N]"
-            " [--noise on|off] [--json]",
+            " [--noise on|off] [--json] [--fault DEVICE.FAULT=N] [--libusb [-- PROGRAM ...]]",
             file=sys.stderr,
         )
         return 2
