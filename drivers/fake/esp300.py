@@ -27,7 +27,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from gonio.drivers.fake.faults import Faults
-from gonio.simulator.bench import Bench, StageFault
+from gonio.simulator.bench import Bench, Stage, StageFault
 
 __all__ = ["ERROR_MESSAGES", "ESP300Firmware", "FakeESP300Server"]
 
@@ -196,6 +196,7 @@ class ESP300Firmware:
         return True
 
     def _execute(self, cmd: str) -> str:
+        """One command: its reply text, or ``""`` (an error is queued for ``TE?``/``TB?``)."""
         m = _CMD.match(cmd)
         if not m:
             self._error(6)
@@ -211,7 +212,25 @@ class ESP300Firmware:
                 return ""
         axis = int(ax_s) if ax_s else None
         t = self.bench.now()
-        # controller-wide commands
+        reply = self._controller_command(mn, axis, query, value, t)
+        if reply is not None:
+            return reply
+        if mn not in _AXIS_CMDS:
+            self._error(6)
+            return ""
+        if axis is None:
+            self._error(37)
+            return ""
+        if axis not in self.axes:
+            self._error(9)
+            return ""
+        return self._axis_command(mn, axis, self.axes[axis], query, value, t)
+
+    def _controller_command(
+        self, mn: str, axis: int | None, query: bool, value: float | None, t: float
+    ) -> str | None:
+        """A controller-wide command's reply (``VE?``, ``TE?``, ``TB?``, ``AB``, ``WS``), or
+        ``None`` when ``mn`` is not one."""
         if mn == "VE" and query:
             return VERSION + "\r\n"
         if mn == "TE" and query:
@@ -232,16 +251,12 @@ class ESP300Firmware:
                 return ""
             self._hold = {"axes": axes, "delay": (value or 0.0) / 1000.0, "stopped": None}
             return ""
-        if mn not in _AXIS_CMDS:
-            self._error(6)
-            return ""
-        if axis is None:
-            self._error(37)
-            return ""
-        if axis not in self.axes:
-            self._error(9)
-            return ""
-        s = self.axes[axis]
+        return None
+
+    def _axis_command(
+        self, mn: str, axis: int, s: Stage, query: bool, value: float | None, t: float
+    ) -> str:
+        """An axis command's reply (status, motor power, identification, parameters, moves)."""
         fmt = "{:.5f}\r\n".format
         if mn == "TP":
             return fmt(s.motor_position(t))
@@ -267,32 +282,7 @@ class ESP300Firmware:
             model = "URS100BPP" if s.units == "deg" else "UTM100PP1HL"
             return f"{model}, B{10000 + axis * 1111}\r\n"
         if mn in ("VA", "AC", "SL", "SR"):
-            if query:
-                v = {
-                    "VA": s.speed,
-                    "AC": s.acceleration,
-                    "SL": self.soft[axis][0],
-                    "SR": self.soft[axis][1],
-                }[mn]
-                return fmt(v)
-            if value is None:
-                self._error(38)
-                return ""
-            if mn == "VA":
-                if not 0 < value <= self.max_velocity:
-                    self._error(100 * axis + 10)
-                else:
-                    s.speed = value
-            elif mn == "AC":
-                if not 0 < value <= self.max_acceleration:
-                    self._error(100 * axis + 11)
-                else:
-                    s.acceleration = value
-            elif mn == "SL":
-                self.soft[axis][0] = value
-            else:
-                self.soft[axis][1] = value
-            return ""
+            return self._parameter(mn, axis, s, query, value)
         if mn == "DH":
             s.define_position(value or 0.0, t)
             return ""
@@ -308,32 +298,66 @@ class ESP300Firmware:
             self._homing.add(axis)
             return ""
         if mn in ("PA", "PR"):
-            if value is None:
-                self._error(38)
-                return ""
-            if s.is_moving(t):
-                start = s.motor_position(t)
-                target_base = s._move.end if s._move is not None else start
-            else:
-                target_base = s.motor_position(t)
-            target = value if mn == "PA" else target_base + value
-            lo, hi = self.soft[axis]
-            if target > hi:
-                self._error(100 * axis + 6)
-                return ""
-            if target < lo:
-                self._error(100 * axis + 7)
-                return ""
-            if s.fault:
-                self._error(100 * axis + 2)
-                return ""
-            if not s.motor_on:
-                self._error(100 * axis + 13)
-                return ""
-            s.move_to(target, t)
-            self._limit_armed.add(axis)
-            return ""
+            return self._move(mn, axis, s, value, t)
         self._error(6)
+        return ""
+
+    def _parameter(self, mn: str, axis: int, s: Stage, query: bool, value: float | None) -> str:
+        """``VA``/``AC``/``SL``/``SR``: query or set velocity, acceleration, soft limits."""
+        if query:
+            v = {
+                "VA": s.speed,
+                "AC": s.acceleration,
+                "SL": self.soft[axis][0],
+                "SR": self.soft[axis][1],
+            }[mn]
+            return f"{v:.5f}\r\n"
+        if value is None:
+            self._error(38)
+            return ""
+        if mn == "VA":
+            if not 0 < value <= self.max_velocity:
+                self._error(100 * axis + 10)
+            else:
+                s.speed = value
+        elif mn == "AC":
+            if not 0 < value <= self.max_acceleration:
+                self._error(100 * axis + 11)
+            else:
+                s.acceleration = value
+        elif mn == "SL":
+            self.soft[axis][0] = value
+        else:
+            self.soft[axis][1] = value
+        return ""
+
+    def _move(self, mn: str, axis: int, s: Stage, value: float | None, t: float) -> str:
+        """``PA``/``PR``: an absolute or relative move, refused outside the soft limits, on a
+        faulted axis or with the motor off."""
+        if value is None:
+            self._error(38)
+            return ""
+        if s.is_moving(t):
+            start = s.motor_position(t)
+            target_base = s._move.end if s._move is not None else start
+        else:
+            target_base = s.motor_position(t)
+        target = value if mn == "PA" else target_base + value
+        lo, hi = self.soft[axis]
+        if target > hi:
+            self._error(100 * axis + 6)
+            return ""
+        if target < lo:
+            self._error(100 * axis + 7)
+            return ""
+        if s.fault:
+            self._error(100 * axis + 2)
+            return ""
+        if not s.motor_on:
+            self._error(100 * axis + 13)
+            return ""
+        s.move_to(target, t)
+        self._limit_armed.add(axis)
         return ""
 
     # -- device-specific faults -------------------------------------------------------------
