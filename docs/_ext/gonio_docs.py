@@ -72,8 +72,8 @@ class GonioCommand(SphinxDirective):
         mod = cmds[name]
         path = name
         sub = _subparser_choices(name)
-        rst = [f"*{mod.HELP}*", "", *_docstring_body(mod), ""]
-        rst += [f"Source: :mod:`{mod.__name__}`.", ""]
+        rst = [mod.HELP[0].upper() + mod.HELP[1:] + ".", "", *_docstring_body(mod), ""]
+        rst += [f"Source: ``{mod.__name__.replace('.', '/')}.py``.", ""]
         for p in [path] if not sub else [f"{name} {s}" for s in sub]:
             rst += [
                 ".. argparse::",
@@ -81,6 +81,7 @@ class GonioCommand(SphinxDirective):
                 "   :func: build_parser",
                 "   :prog: gonio",
                 f"   :path: {p}",
+                "   :nodescription:",
                 "",
             ]
         return self.parse_text_to_nodes("\n".join(rst))

@@ -17,7 +17,7 @@ measured samples in the plane of incidence against the fitted and the true model
 # %%
 # Render raw images with their side-cars
 # --------------------------------------
-# :class:`~gonio.simulator.LBLInstrument` is the simulated instrument (ellipsoidal dome of
+# :class:`~gonio.simulator.lbl.LBLInstrument` is the simulated instrument (ellipsoidal dome of
 # radius 0.15 m, source-sample half-separation 0.01 m, equidistant fisheye). A smaller sensor
 # than the default 640 × 480 keeps this tutorial quick. ``bracket`` chooses the f-stops that
 # cover the dynamic range of the scene and returns one ``(image, metadata)`` pair per stop;
@@ -81,9 +81,9 @@ samples = BRDFSamples.concatenate(tables)
 # %%
 # Fit and compare with the truth
 # ------------------------------
-# :func:`gonio.fit.fit` fits any registered model or sum of models; the truth is the
-# preset, :func:`gonio.materials.get`. The comparison is the test of the whole chain: the
-# error of every parameter should be consistent with its standard error.
+# :func:`gonio.fit.fit <gonio.fit.core.fit>` fits any registered model or sum of models; the
+# truth is the preset, :func:`gonio.materials.get`. The comparison is the test of the whole
+# chain: the error of every parameter should be consistent with its standard error.
 result = fit.fit(samples, "ward")
 truth = materials.get("rolled_brass")
 print(f"converged {result.converged}, chi2/dof {result.chi2_dof:.3f}, n = {result.n_samples}")
