@@ -72,7 +72,7 @@ with serial.Serial(server.port, timeout=1.0) as port:
 # frame at every angle.
 mc = ESP300.open(server.port, axes={"source": 1, "sample": 2, "tilt": 3}, timeout=0.5)
 mc.enable()
-spec = USB2000Plus.open(usb_name)
+spec = USB2000Plus.open(usb_name, timeout=0.2)  # USB transfer timeout, s
 cam = PTPCamera.open(usb_name)
 spec.integration_time = 0.02
 cam.exposure = 0.01
@@ -163,7 +163,7 @@ print("positions:", [r["angle"] for r in again], "== clean scan:",
 # :class:`~gonio.drivers.errors.DeviceTimeout` naming the device and the command; a motor
 # stalled against a hardware limit raises :class:`~gonio.drivers.errors.DeviceError` with the
 # controller's own error message, and the axis stays where it stopped.
-server.faults.reply_delay, server.faults.delayed_replies = 2.0, -1  # every reply late
+server.faults.reply_delay, server.faults.delayed_replies = 0.8, -1  # every reply late
 try:
     arm.position()
 except DeviceTimeout as exc:
