@@ -20,6 +20,7 @@ then compares two plans and what each costs.
 # per incidence angle measures every outgoing direction at once. Its dome is an ellipsoid
 # (default) or a hemisphere. The material is a preset from the papers' tables; its model and
 # parameters are the truth the campaign is judged against.
+import json
 import tempfile
 from pathlib import Path
 
@@ -65,7 +66,11 @@ print("resolved rotations:", res.plan.rotations_deg, " chi2/dof:", round(s["chi2
 # rotations, the way Ward measured anisotropic samples so that both principal directions lie
 # in the plane of incidence once. The cost of a plan on the real instrument is its number of
 # exposures (each a stage move and a frame) and the shutter-open time; both are read back from
-# the side-cars in the results folder. The simulation's own compute time is in ``timings_s``.
+# the side-cars in the results folder. On a real instrument the stage moves and the frame
+# read-outs dominate the shutter time; the LBL campaign does not model them, so the number of
+# frames is the figure to scale (the Cornell campaign's summary does estimate its real
+# instrument time, ``estimated_real_instrument_h``). The simulation's own compute time is in
+# ``timings_s``.
 plans = {
     "A: 3 angles, 1 rotation": campaign.Plan(
         material="rolled_brass", theta_i_deg=(10, 40, 70), rotations_deg=(0,), plots=False
@@ -81,8 +86,6 @@ plans = {
 
 def frames_and_exposure(folder: Path) -> tuple[int, float]:
     """Number of raw frames and their summed exposure time, from the JSON side-cars."""
-    import json
-
     cars = [p for p in (folder / "raw").rglob("*.json") if p.name != "done.json"]
     return len(cars), sum(json.loads(p.read_text())["exposure_s"] for p in cars)
 
