@@ -1472,7 +1472,7 @@ class LBLInstrument:
         ``positions`` maps stage names to degrees: ``positions[source_axis]`` is θ_i (source
         arm) and ``positions[sample_axis]`` the sample-holder rotation ψ, so that
         ``φ_i = arm_azimuth - ψ``; a negative arm angle means the arm swung through the
-        zenith (θ_i = |θ|, φ_i + π). Successive calls draw fresh noise from one generator.
+        zenith (``θ_i = |θ|``, ``φ_i + π``). Successive calls draw fresh noise from one generator.
         """
         gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 

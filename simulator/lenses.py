@@ -13,13 +13,13 @@ All models share the form::
 where θ is the angle from the optical axis, ψ = atan2(y, x) the azimuth and ``g`` the radial
 mapping (focal length 1):
 
-=================  ====================================================
-``equidistant``    g = θ
-``equisolid``      g = 2 sin(θ/2)
-``stereographic``  g = 2 tan(θ/2)
-``orthographic``   g = sin θ          (θ ≤ 90°)
-``kannala_brandt`` g = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)  (OpenCV ``cv2.fisheye``)
-=================  ====================================================
+==================  ====================================================
+``equidistant``     g = θ
+``equisolid``       g = 2 sin(θ/2)
+``stereographic``   g = 2 tan(θ/2)
+``orthographic``    g = sin θ          (θ ≤ 90°)
+``kannala_brandt``  g = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)  (OpenCV ``cv2.fisheye``)
+==================  ====================================================
 
 For ``kannala_brandt`` the forward projection is exactly ``cv2.fisheye.projectPoints`` with
 ``K = [[fx, skew·fx, cx], [0, fy, cy], [0, 0, 1]]`` and ``D = (k1, k2, k3, k4)`` (OpenCV writes

@@ -618,7 +618,7 @@ class TorranceSparrow(BRDF):
     ``min(1, 2 cos θa cos θi / cos θd, 2 cos θa cos θr / cos θd)`` (eq. 33/36 with â the half
     vector). Eq. 31 is the radiance per unit E0; dividing by cos θi gives the BRDF. The
     Gaussian is not normalised: k_s is the free weight of eq. 32 (the paper prints
-    k_s/k_b). Written symmetrically in wi and wo (cos θd = |wi + wo|/2), so reciprocity is
+    k_s/k_b). Written symmetrically in wi and wo (cos θd = ``|wi + wo|/2``), so reciprocity is
     exact.
 
     Parameters

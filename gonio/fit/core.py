@@ -539,7 +539,7 @@ class FitResult:
 
     @property
     def relative_stderr(self) -> dict[str, float]:
-        """stderr / |value| per flat parameter (inf for a zero value)."""
+        """``stderr / |value|`` per flat parameter (inf for a zero value)."""
         return {
             k: (self.stderr[k] / abs(v) if v != 0 else math.inf) for k, v in self.params.items()
         }
