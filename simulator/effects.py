@@ -221,13 +221,14 @@ EFFECTS: dict[str, EffectSpec] = {
             hi_open=True,
         ),
         _spec(
-            "lens_body_height", "m", (0.0, 0.05),
-            "Height of the lens body (a cylinder of radius 0.6 D about the lens axis) above "
-            "the sample plane: rays from the sample towards the dome that pass through it "
-            "never reach the camera (grazing directions towards the camera). The pixels "
-            "that see those rays are dark in every image.",
-            f"{_WARD}, Figure 2-3 (the lens sits beside the sample, 2D away, inside the "
-            "dome); the height is the fisheye's front barrel (engineering estimate).",
+            "lens_body_height", "m", (0.0, 0.02),
+            "Height of the fisheye's front barrel above the sample plane (a cylinder of "
+            "radius 2D - 1.25 r_s about the lens axis, touching the holder's rim): rays from "
+            "the sample towards the dome that pass through it never reach the camera "
+            "(grazing directions on the camera's side). The pixels that see those rays are "
+            "dark in every image.",
+            f"{_WARD}, Figure 2-3 (the lens looks up beside the sample, 2D away, its front "
+            "at about the sample plane); the protrusion is an engineering estimate.",
         ),
         _spec(
             "holder_rim_height", "m", (0.0, 0.005),
@@ -367,7 +368,7 @@ PRESETS: dict[str, dict[str, Distribution]] = {
             "pixel_fill": (0.4, 0.1),  # 1990 interline video CCD, no microlenses
             "veiling_glare": (0.03, 0.01),  # single-coated fisheye, acrylic dome
             "vignetting": (0.4, 0.1),
-            "lens_body_height": (0.02, 0.002),
+            "lens_body_height": (0.003, 0.001),
             "holder_rim_height": (0.0005, 0.0002),
             "sample_height": (0.0, 3e-4),  # placed by hand
             "sample_tilt": (4e-3, 2e-3),
@@ -391,7 +392,7 @@ PRESETS: dict[str, dict[str, Distribution]] = {
             "pixel_fill": (0.9, 0.05),  # microlenses
             "veiling_glare": (0.01, 0.003),  # multi-coated fisheye
             "vignetting": (0.2, 0.05),
-            "lens_body_height": (0.015, 0.001),
+            "lens_body_height": (0.002, 0.0005),
             "holder_rim_height": (0.0002, 0.0001),
             "sample_height": (0.0, 5e-5),  # against a reference stop
             "sample_tilt": (1e-3, 5e-4),

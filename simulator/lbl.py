@@ -625,6 +625,10 @@ class LBLInstrument:
             prnu, _ = self.sensor.maps(g.height, g.width)
             k = self.sensor.qe * (math.pi / 4.0) * self.sensor.pixel_pitch**2
             self._resp = (prnu * k).ravel()
+            v = self._fx.get("vignetting", 0.0)
+            if v:  # the fisheye's relative illumination, 1 - v (θ / θ_max)²
+                th = self.lens.field_angle(self.lens.pixel_grid().reshape(-1, 2))
+                self._resp = self._resp * (1.0 - v * np.minimum(th / self.lens.theta_max, 1) ** 2)
             self._resp_c = np.ascontiguousarray(self._resp[g.idx])
         return self._resp, self._resp_c
 

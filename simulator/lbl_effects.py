@@ -111,9 +111,9 @@ def view_blocked(
     """True where the ray from the sample point ``q`` along ``wo`` to the dome point ``p`` is
     blocked by the lens body or the holder's rim.
 
-    Lens body: a vertical cylinder of radius ``2D - 1.25 r_s`` about the lens axis, of
-    height ``lens_body_height``; the holder's rim: radius ``1.25 r_s`` about the sample
-    centre, ``holder_rim_height`` above the sample plane (heights from ``fx``).
+    Lens body: a vertical cylinder of radius ``2D - 1.25 r_s`` about the lens axis,
+    ``lens_body_height`` above the sample plane; the holder's rim: radius ``1.25 r_s``
+    about the sample centre, ``holder_rim_height`` above the sample plane (from ``fx``).
     """
     blocked = np.zeros(q.shape[0], dtype=bool)
     d = mirror.half_separation

@@ -117,6 +117,7 @@ class Certificate:
         from scipy.interpolate import RegularGridInterpolator
 
         self.check_covers(theta_i, theta_o)
+        shape = np.broadcast_shapes(np.shape(theta_i), np.shape(theta_o), np.shape(dphi))
         pts = np.stack(
             np.broadcast_arrays(
                 np.degrees(np.asarray(theta_i, dtype=np.float64)),
@@ -129,7 +130,7 @@ class Certificate:
             (np.array(self.theta_i_deg), np.array(self.theta_o_deg), np.array(self.dphi_deg)),
             self.factor,
         )
-        return f(pts)
+        return f(pts.reshape(-1, 3)).reshape(shape)
 
     def brdf(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """Certified BRDF ``ρ R / π`` at directions in the standard's frame (..., 3)."""
