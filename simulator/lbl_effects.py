@@ -20,11 +20,13 @@ __all__ = [
     "FISHEYE_FOCAL_LENGTH_M",
     "LAMP_WARMUP_TAU_S",
     "beam_shadowed",
+    "dome_rays",
     "fstop_area_factor",
     "lamp_factor",
     "psf_sigma_px",
     "slope_field",
     "tilt_rotation",
+    "to_plane",
     "trace_perturbed",
     "true_f_number",
     "view_blocked",
@@ -60,14 +62,13 @@ def slope_field(
     return out[0], out[1]
 
 
-def trace_perturbed(mirror, dirs: NDArray, slope=None, plane_z: float = 0.0) -> dict:
-    """:meth:`Mirror.trace` with the surface normal tilted by ``slope(points)`` and the
-    sample plane at ``z = plane_z``.
+def dome_rays(mirror, dirs: NDArray, slope=None) -> tuple[NDArray, NDArray, NDArray]:
+    """Camera rays reflected by the dome whose normal is tilted by ``slope(points)``.
 
     ``slope`` maps mirror points ``(n, 3)`` to the normal's tilts ``(s_e, s_n)`` (radians)
     along the dome's local east and north tangents (:func:`slope_field`); the reflected ray
-    turns by twice the tilt. Returns the same dict as :meth:`Mirror.trace`
-    (``sample_point`` on ``z = plane_z``).
+    turns by twice the tilt. Returns ``(u, p, refl)``: unit camera rays, mirror points and
+    reflected directions.
     """
     u = np.asarray(dirs, dtype=np.float64)
     u = u / np.linalg.norm(u, axis=-1, keepdims=True)
@@ -83,6 +84,12 @@ def trace_perturbed(mirror, dirs: NDArray, slope=None, plane_z: float = 0.0) -> 
         n = n + se[:, None] * east + sn[:, None] * north
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
     refl = u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
+    return u, p, refl
+
+
+def to_plane(u: NDArray, p: NDArray, refl: NDArray, plane_z: float = 0.0) -> dict:
+    """Where the reflected rays of :func:`dome_rays` meet the sample plane ``z = plane_z``:
+    the same dict as :meth:`Mirror.trace` (``sample_point`` on that plane)."""
     rz = refl[..., 2]
     valid = (u[..., 2] > 0.0) & (rz < 0.0) & (p[..., 2] > plane_z)
     s = np.where(valid, (plane_z - p[..., 2]) / np.where(valid, rz, -1.0), 0.0)
@@ -90,6 +97,12 @@ def trace_perturbed(mirror, dirs: NDArray, slope=None, plane_z: float = 0.0) -> 
     q[..., 2] = plane_z
     wo = np.where(valid[..., None], -refl, np.array([0.0, 0.0, 1.0]))
     return {"point": p, "sample_point": q, "wo": wo, "valid": valid}
+
+
+def trace_perturbed(mirror, dirs: NDArray, slope=None, plane_z: float = 0.0) -> dict:
+    """:meth:`Mirror.trace` with the dome's normal tilted by ``slope(points)`` and the sample
+    plane at ``z = plane_z`` (:func:`dome_rays` then :func:`to_plane`)."""
+    return to_plane(*dome_rays(mirror, dirs, slope), plane_z)
 
 
 def _exit_distance(qx, qy, dx, dy, cx, cy, r):
