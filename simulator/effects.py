@@ -176,7 +176,7 @@ EFFECTS: dict[str, EffectSpec] = {
             "aperture x focus error, RMS = diameter / 4).",
             f"{_WARD}, §3.1: 'By focusing the lens at one half the hemisphere radius, a near "
             "perfect imaging of the reflected angles takes place.' Thin-lens depth of "
-            "field: e.g. Hecht, E. (2017). Optics, 5th ed., Pearson, §5.7.",
+            "field: e.g. Hecht, E. (2017). Optics, 5th ed., Pearson.",
         ),
         _spec(
             "diffraction_wavelength", "nm", (0.0, 1100.0),
@@ -195,7 +195,7 @@ EFFECTS: dict[str, EffectSpec] = {
             "sqrt(fill), i.e. a blur of RMS sqrt(fill / 12) pixel in each axis.",
             "Interline CCDs without microlenses: fill factors 0.3-0.5; with microlenses and "
             "in back-illuminated sensors 0.8-1 (e.g. Holst, G. C., Lomheim, T. S. (2011). "
-            "CMOS/CCD Sensors and Camera Systems, 2nd ed., SPIE Press, ch. 3).",
+            "CMOS/CCD Sensors and Camera Systems, 2nd ed., SPIE Press).",
         ),
         _spec(
             "veiling_glare", "1", (0.0, 1.0),
@@ -205,8 +205,8 @@ EFFECTS: dict[str, EffectSpec] = {
             "standard and background images alike; eq. 2 does not remove it.",
             "ISO 9358:1994, Optics and optical instruments - Veiling glare of image forming "
             "systems; McCann, J. J., Rizzi, A. (2007). Veiling glare: the dynamic range "
-            "limit of HDR images. Proc. SPIE 6492, 649213, doi:10.1117/12.703694 (camera "
-            "lenses: glare indices of one to a few percent).",
+            "limit of HDR images. Proc. SPIE 6492, IS&T/SPIE Electronic Imaging (camera "
+            "lenses: glare of one to a few percent of the mean image irradiance).",
             hi_open=True,
         ),
         _spec(
@@ -216,8 +216,8 @@ EFFECTS: dict[str, EffectSpec] = {
             "the sample and standard images) but costs signal-to-noise towards grazing "
             "angles.",
             "Kumler, J. J., Bauer, M. L. (2000). Fish-eye lens designs and their relative "
-            "performance. Proc. SPIE 4093, 360-369, doi:10.1117/12.405226 (relative "
-            "illumination of fisheye designs, 0.5-0.9 at the field edge).",
+            "performance. Proc. SPIE 4093, Current Developments in Lens Design and Optical "
+            "Systems Engineering (relative illumination of fisheye designs at the field edge).",
             hi_open=True,
         ),
         _spec(
@@ -305,14 +305,14 @@ EFFECTS: dict[str, EffectSpec] = {
             "Relative output deficit of the lamp at the campaign's first capture, decaying "
             "with a 600 s time constant: E(t) = E (1 - w exp(-t / 600 s) + d t / 1 h).",
             "Quartz-halogen lamps need 15-30 min to stabilise (e.g. Walker, J. H. et al. "
-            "(1987). Spectral irradiance calibrations. NBS Special Publication 250-20, §4).",
+            "(1987). Spectral irradiance calibrations. NBS Special Publication 250-20).",
         ),
         _spec(
             "lamp_drift", "1/h", (-0.2, 0.2),
             "Linear relative drift of the lamp output per hour of campaign time (signed).",
             "Output of an incandescent lamp goes as about V^3.4 of its supply voltage, so an "
             "unregulated supply's 0.1 %/h drift is ~0.3 %/h of light (e.g. IES Lighting "
-            "Handbook, 10th ed. (2011), ch. 7).",
+            "Handbook, 10th ed. (2011)).",
         ),
         _spec(
             "lamp_flicker", "1", (0.0, 0.05),
