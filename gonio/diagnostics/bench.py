@@ -1104,39 +1104,27 @@ def _effect_knob(ablate: bool) -> Callable[[Any, int], dict[str, float]]:
 
 _EFFECT_NEEDS = (*_LBL_NEEDS, "gonio.simulator.effects:PRESETS")
 
-register_knob(
-    Knob(
-        "lbl_effect",
-        "one imperfection of the LBL instrument at a time (gonio.simulator.effects, at the "
-        "modern preset's typical magnitude; 'ideal' = none), uncorrected, through capture → "
-        "eq. 2 → fit (rolled brass, θi = 20, 50°): the error it causes and what it costs",
-        settings=_effect_settings(),
-        quick_settings=("ideal", "veiling_glare", "standard_non_lambertian"),
-        run=_effect_knob(False),
-        primary="max_rel_err",
-        unit="effect",
-        needs=_EFFECT_NEEDS,
-        waiting_on="simulator: effects",
-        prepare=_warm_lbl,
+for _name, _ablate, _what in (
+    ("lbl_effect", False, "one imperfection of the LBL instrument at a time "
+     "(gonio.simulator.effects, at the modern preset's typical magnitude; 'ideal' = none)"),
+    ("lbl_effect_ablation", True, "the modern preset's typical LBL instrument with one "
+     "imperfection removed ('ideal' = all of them on)"),
+):  # fmt: skip
+    register_knob(
+        Knob(
+            _name,
+            f"{_what}, uncorrected, through capture → eq. 2 → fit (rolled brass, θi = 20, "
+            "50°): the error it causes (or leaves) and what it costs",
+            settings=_effect_settings(),
+            quick_settings=("ideal", "veiling_glare", "standard_non_lambertian"),
+            run=_effect_knob(_ablate),
+            primary="max_rel_err",
+            unit="effect",
+            needs=_EFFECT_NEEDS,
+            waiting_on="simulator: effects",
+            prepare=_warm_lbl,
+        )
     )
-)
-
-register_knob(
-    Knob(
-        "lbl_effect_ablation",
-        "the modern preset's typical instrument with one imperfection removed ('ideal' = "
-        "all of them on), uncorrected (rolled brass, θi = 20, 50°): the error left without "
-        "that effect and the time saved",
-        settings=_effect_settings(),
-        quick_settings=("ideal", "veiling_glare", "standard_non_lambertian"),
-        run=_effect_knob(True),
-        primary="max_rel_err",
-        unit="effect",
-        needs=_EFFECT_NEEDS,
-        waiting_on="simulator: effects",
-        prepare=_warm_lbl,
-    )
-)
 
 
 # --------------------------------------------------------------------------- Oren-Nayar quadrature
