@@ -812,33 +812,42 @@ class LBLInstrument:
         fx = self._fx
         tilt = fx.get("sample_tilt", 0.0)
         h = fx.get("sample_height", 0.0)
-        wx, wy, wz, qx, qy = g.wx, g.wy, g.wz, g.qx, g.qy
-        keep = None
-        if tilt:
-            az = float(effect_rng(self.instrument_seed, "sample_tilt").uniform(0, 2 * math.pi))
-            t = le.tilt_rotation(tilt, az)
-            c, s = math.cos(psi), math.sin(psi)
-            rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            mm = rz @ t @ rz.T
-            wx, wy, wz = (mm[j, 0] * g.wx + mm[j, 1] * g.wy + mm[j, 2] * g.wz for j in range(3))
-            wi_local = t @ wi_local
-            keep = np.flatnonzero(wz > 1e-9)
+        c_arr = np.ascontiguousarray
+        tilted = g.__dict__.setdefault("_tilted", {})
+        base = tilted.get(psi)  # the tilted directions, once per holder rotation
+        if base is None:
+            rc = self._candidate_response(g, 1)
+            if tilt:
+                az = effect_rng(self.instrument_seed, "sample_tilt").uniform(0, 2 * math.pi)
+                t = le.tilt_rotation(tilt, float(az))
+                c, s = math.cos(psi), math.sin(psi)
+                rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                mm = rz @ t @ rz.T
+                w = [mm[j, 0] * g.wx + mm[j, 1] * g.wy + mm[j, 2] * g.wz for j in range(3)]
+                keep = np.flatnonzero(w[2] > 1e-9)
+                if keep.size == g.idx.size:
+                    keep = None
+                else:
+                    w = [a[keep] for a in w]
+            else:
+                t, w, keep = np.eye(3), [g.wx, g.wy, g.wz], None
+            sub = (lambda a: a) if keep is None else (lambda a: c_arr(a[keep]))
+            base = tilted[psi] = (
+                t, [c_arr(a) for a in w], sub(g.idx), sub(g.qx), sub(g.qy), sub(rc),
+                1.0 / np.sqrt(w[2]),
+            )  # fmt: skip
+        t, (wx, wy, wz), idx, qx, qy, rc, isq = base
         if h:
             qx = qx - h * wi_dome[0] / wi_dome[2]
             qy = qy - h * wi_dome[1] / wi_dome[2]
-        if keep is not None and keep.size != g.idx.size:
-            wx, wy, wz, qx, qy = (a[keep] for a in (wx, wy, wz, qx, qy))
-            idx = g.idx[keep]
-        else:
-            idx, keep = g.idx, None
-        c_arr = np.ascontiguousarray
         posed = replace(
-            g, idx=idx, wx=c_arr(wx), wy=c_arr(wy), wz=c_arr(wz), qx=c_arr(qx), qy=c_arr(qy),
-            isq=1.0 / np.sqrt(wz), q_max=float(np.sqrt((qx * qx + qy * qy).max(initial=0.0))),
+            g, idx=idx, wx=wx, wy=wy, wz=wz, qx=qx, qy=qy, isq=isq,
+            q_max=float(np.sqrt((qx * qx + qy * qy).max(initial=0.0))),
         )  # fmt: skip
-        rc = self._candidate_response(g, 1)
-        posed.__dict__["_rc"] = rc if keep is None else c_arr(rc[keep])
-        return posed, wi_local
+        posed.__dict__["_rc"] = rc
+        posed.__dict__["_runs"] = g.runs() if idx is g.idx else False
+        posed.__dict__["_theta_o_key"] = (id(g), psi)  # (one albedo map per rotation)
+        return posed, t @ wi_local
 
     def _albedo_fn(self, kind: str, model: BRDF) -> Callable[[NDArray], NDArray]:
         """``ρ_dh(θ)`` of the sample (interpolated over 7 polar angles at φ = 0, to 0.1 %;
@@ -864,30 +873,22 @@ class LBLInstrument:
     def _scene_background(self, bg, kind, model, theta_i, g, rc, lit, gv, isq, kd0, ks0, k0):
         """The scene's background electrons plus re-illumination and ambient light on the
         sample (over every candidate pixel: the whole sample disk) and the veiling glare of
-        the whole image (over the image circle)."""
+        the whole image (over the image circle). A new array; ``bg`` is not changed."""
         fx = self._fx
-        bg = bg.copy()
         r = fx.get("reillumination", 0.0)
         a = fx.get("ambient_on_sample", 0.0)
         if model is not None and (r or a):
             alb = self._albedo_fn(kind, model)
-            theta_o = g.__dict__.get("_theta_o")
-            if theta_o is None:
-                theta_o = g.__dict__["_theta_o"] = np.arccos(np.clip(g.wz, -1.0, 1.0))
-            rho_o = alb(theta_o)
-            add = 0.0
+            coef = 0.0
             if r:
                 rs, rspot = self.sample_radius, self.source.spot_radius
                 lit_area = min(math.pi * rspot**2 / math.cos(theta_i), math.pi * rs**2)
                 e_re = r * float(alb(np.array(theta_i))) * math.cos(theta_i) * lit_area
-                add = add + k0 * e_re / (math.pi * rs**2) / math.pi * rho_o
+                coef += k0 * e_re / (math.pi * rs**2) / math.pi
             if a:
                 m = self.mirror
-                add = add + a * m.transmittance * m.reflectance * self.background.ambient * rho_o
-            if g.runs() is None:  # a pixel's sub-pixel rays add up
-                np.add.at(bg, g.idx, rc * add)
-            else:
-                bg[g.idx] += rc * add
+                coef += a * m.transmittance * m.reflectance * self.background.ambient
+            bg = bg + coef * self._albedo_image(kind, model, g, rc, alb)
         glare = fx.get("veiling_glare", 0.0)
         if glare:
             resp_field = self.__dict__.get("_resp_field")
@@ -896,10 +897,27 @@ class LBLInstrument:
                 fi = self.geometry.field_idx
                 resp_field[fi] = self._response()[0][fi]
                 self._resp_field = resp_field
-            sig = k0 * float(np.dot(rc * lit, kd0 + ks0 * gv * isq))
+            # (a plain sum, not BLAS's dot: a woken BLAS thread pool costs more than the sum)
+            sig = k0 * float(np.sum(rc * lit * (kd0 + ks0 * gv * isq)))
             total = float(bg.sum()) + sig  # (the background is 0 outside the image circle)
-            bg += resp_field * (glare * total / float(resp_field.sum()))
+            bg = bg + resp_field * (glare * total / float(resp_field.sum()))
         return bg
+
+    def _albedo_image(self, kind, model, g, rc, alb) -> NDArray:
+        """Full image of ``response x ρ_dh(θo)`` over the candidates of ``g`` (0 elsewhere):
+        the pixels' electrons per unit diffuse irradiance on the sample (cached per
+        geometry, holder rotation and model)."""
+        cache = self.__dict__.setdefault("_albedo_images", {})
+        key = (g.__dict__.get("_theta_o_key", id(g)), kind, model.name,
+               repr(sorted(model.params.items())) if kind == "brdf" else "")  # fmt: skip
+        img = cache.get(key)
+        if img is None:
+            if len(cache) > 8:
+                cache.clear()
+            img = np.zeros(g.n_pixels)
+            np.add.at(img, g.idx, rc * alb(np.arccos(np.clip(g.wz, -1.0, 1.0))))
+            cache[key] = img
+        return img
 
     def _frame_electrons(
         self, sc: _Scene, f_number: float, key: str = "", clock_s: float | None = None
@@ -927,14 +945,30 @@ class LBLInstrument:
         sigma = le.psf_sigma_px(
             n, fx, self.sensor.pixel_pitch, self.lens.fx, 0.5 * self.mirror.radius
         )
-        if sigma > 0.0:
+        if sigma > 0.0:  # (the dark current is the pixel's own: not blurred)
             import cv2
 
             dark = sc.dark * sc.exposure
-            img = (e - dark).reshape(self.lens.height, self.lens.width)
-            e = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE).ravel()
+            e -= dark
+            img = e.reshape(self.lens.height, self.lens.width)
+            r0, r1, c0, c1 = self._light_box()
+            box = img[r0:r1, c0:c1].astype(np.float32)  # (float32: 1e-7 of the signal)
+            img[r0:r1, c0:c1] = cv2.GaussianBlur(box, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
             e += dark
         return e
+
+    def _light_box(self) -> tuple[int, int, int, int]:
+        """Rows and columns of the image circle, with an 8-pixel margin (light falls nowhere
+        else, so the point-spread function need not be applied outside)."""
+        box = self.__dict__.get("_box")
+        if box is None:
+            h, w = self.lens.height, self.lens.width
+            rows, cols = np.divmod(self.geometry.field_idx, w)
+            box = self._box = (
+                max(int(rows.min()) - 8, 0), min(int(rows.max()) + 9, h),
+                max(int(cols.min()) - 8, 0), min(int(cols.max()) + 9, w),
+            )  # fmt: skip
+        return box
 
     # ------------------------------------------------------------------ rendering core
     def _frames(self, theta_i: float, phi_i: float) -> tuple[NDArray, NDArray, float]:
