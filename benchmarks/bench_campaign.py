@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/bench_campaign.py                 # default campaign timing (3 runs)
+    python benchmarks/bench_campaign.py                 # default campaign timing, ideal and
+                                                        # realistic (modern) instrument A B A B
     python benchmarks/bench_campaign.py --ward-table    # every Ward-table material, noise off/on
     python benchmarks/bench_campaign.py --others        # blue paint, plaster, Li-Torrance
     python benchmarks/bench_campaign.py --blue-paint    # only Lafortune's blue paint
@@ -112,11 +113,14 @@ def main(argv=None) -> int:
     ap.add_argument("--latex", action="store_true", help="with --ward-table: latex tables too")
     ap.add_argument("--materials", default=None, help="comma-separated subset")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--presets", default="ideal,modern", help="instrument presets timed side by side"
+    )
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     out: dict = {}
     if not (args.ward_table or args.others or args.blue_paint):
-        out["default"] = cold_runs(args.repeat)
+        out["default"] = cold_runs(args.repeat, tuple(args.presets.split(",")))
     if args.ward_table:
         names = args.materials.split(",") if args.materials else ward_table_materials(args.latex)
         rows = []
@@ -165,35 +169,49 @@ def main(argv=None) -> int:
     return 0
 
 
-def cold_runs(repeat: int) -> list[dict]:
-    """``gonio campaign`` in a fresh interpreter, ``repeat`` times: wall clock from the shell's
-    view (start-up, imports and JIT-cache loading included) beside the campaign's own total,
-    so start-up = wall − total."""
+def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> list[dict]:
+    """``gonio campaign --preset P`` in a fresh interpreter, ``repeat`` times for each preset,
+    alternating (A B A B): wall clock from the shell's view (start-up, imports and JIT-cache
+    loading included) beside the campaign's own total, so start-up = wall − total; then
+    each preset's wall time over the first's, pair by pair (the realistic instrument's cost
+    against the ideal one's, measured side by side)."""
     import subprocess
 
     # the console script's own entry point (it ends with a quick exit, see console_main)
     code = "from gonio.cli import console_main; console_main()"
     rows = []
     for k in range(repeat):
-        with tempfile.TemporaryDirectory() as d:
-            t = time.perf_counter()
-            subprocess.run(
-                [sys.executable, "-c", code, "campaign", "--out", f"{d}/out", "--quiet",
-                 "--json", f"{d}/s.json"],
-                check=True, cwd=d,
-            )  # fmt: skip
-            wall = time.perf_counter() - t
-            with open(f"{d}/s.json") as f:
-                summ = json.load(f)
-        tim = summ["timings_s"]
-        rows.append({"wall_s": wall, "startup_s": wall - tim["total"], "timings_s": tim,
-                     "relative_error": summ["relative_error"]})  # fmt: skip
-        stages = ", ".join(f"{s} {v:.2f}" for s, v in tim.items())
-        print(f"run {k}: wall {wall:.2f} s = start-up {wall - tim['total']:.2f} s + campaign "
-              f"{tim['total']:.2f} s ({stages})", flush=True)  # fmt: skip
-    walls = sorted(r["wall_s"] for r in rows)
-    print(f"default campaign, cold, wall clock (s): median {walls[len(walls) // 2]:.2f}, "
-          f"min {walls[0]:.2f}, max {walls[-1]:.2f}")  # fmt: skip
+        for preset in presets:
+            with tempfile.TemporaryDirectory() as d:
+                t = time.perf_counter()
+                subprocess.run(
+                    [sys.executable, "-c", code, "campaign", "--out", f"{d}/out", "--quiet",
+                     "--json", f"{d}/s.json", "--preset", preset],
+                    check=True, cwd=d,
+                )  # fmt: skip
+                wall = time.perf_counter() - t
+                with open(f"{d}/s.json") as f:
+                    summ = json.load(f)
+            tim = summ["timings_s"]
+            rows.append({"preset": preset, "run": k, "wall_s": wall,
+                         "startup_s": wall - tim["total"], "timings_s": tim,
+                         "relative_error": summ["relative_error"]})  # fmt: skip
+            stages = ", ".join(f"{s} {v:.2f}" for s, v in tim.items())
+            print(f"run {k} {preset}: wall {wall:.2f} s = start-up {wall - tim['total']:.2f} s "
+                  f"+ campaign {tim['total']:.2f} s ({stages})", flush=True)  # fmt: skip
+    for preset in presets:
+        walls = sorted(r["wall_s"] for r in rows if r["preset"] == preset)
+        print(f"default campaign, preset {preset}, cold, wall clock (s): median "
+              f"{walls[len(walls) // 2]:.2f}, min {walls[0]:.2f}, max {walls[-1]:.2f}")  # fmt: skip
+    base = [r["wall_s"] for r in rows if r["preset"] == presets[0]]
+    for preset in presets[1:]:
+        ratios = sorted(r["wall_s"] / b for r, b in
+                        zip((r for r in rows if r["preset"] == preset), base))  # fmt: skip
+        print(
+            f"wall {preset} / {presets[0]}, pair by pair: "
+            + ", ".join(f"{x:.2f}" for x in ratios)
+            + f"; median {ratios[len(ratios) // 2]:.2f}"
+        )
     return rows
 
 

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -173,8 +173,16 @@ def _check_rays(rays_per_pixel: Any) -> int:
 
 
 def _trace_geometry(
-    mirror: Mirror, lens: FisheyeLens, sample_radius: float, rays: int = 1
+    mirror: Mirror,
+    lens: FisheyeLens,
+    sample_radius: float,
+    rays: int = 1,
+    tracer: Callable[[NDArray], dict[str, NDArray]] | None = None,
+    keep: Callable[[dict[str, NDArray], NDArray], NDArray] | None = None,
 ) -> Geometry:
+    """Trace every pixel; ``tracer`` replaces :meth:`Mirror.trace` (an imperfect dome, another
+    sample plane) and ``keep(trace, q)`` further selects the candidates (occlusion); both
+    only with one ray per pixel."""
     t0 = time.perf_counter()
     h, w = lens.height, lens.width
     uv = lens.pixel_grid().reshape(-1, 2)
@@ -183,9 +191,11 @@ def _trace_geometry(
     dirs = lens.unproject(uv[field_idx])
     if rays > 1:
         return _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0)
-    tr = mirror.trace(dirs)
+    tr = mirror.trace(dirs) if tracer is None else tracer(dirs)
     q = tr["sample_point"] - mirror.sample_position
     on_sample = tr["valid"] & (q[:, 0] ** 2 + q[:, 1] ** 2 <= sample_radius**2)
+    if keep is not None:
+        on_sample &= keep(tr, q)
     wo = tr["wo"]
     sel = np.flatnonzero(on_sample)
     idx = field_idx[sel]
@@ -364,6 +374,11 @@ def _rng_and_seed(rng: Any) -> tuple[np.random.Generator, int | None]:
     return np.random.default_rng(seed), seed
 
 
+def _frame_key(kind, theta_i, phi_i, exposure, f_number, seed, index) -> str:
+    """Name of one frame, for the per-frame effects' deterministic draws."""
+    return f"{kind}/{theta_i:.12g}/{phi_i:.12g}/{exposure:.12g}/{f_number:.6g}/{seed}/{index}"
+
+
 def _ward_kernel_params(model: BRDF) -> tuple[float, float, float, float, bool] | None:
     """(kd, ks, 1/αx², 1/αy², approx) if the model has a specialised kernel, else None."""
     from gonio.brdf.lambert import Lambert
@@ -417,9 +432,28 @@ class LBLInstrument:
         Radius of the (round) sample, metres; must be smaller than ``2D`` so the sample
         does not overlap the lens.
     rho_standard : float
-        Reflectance of the diffuse standard (Lambertian), in (0, 1].
+        Directional-hemispherical reflectance of the diffuse standard, in (0, 1]
+        (Lambertian unless the effects make it a PTFE standard).
     mirror_reflectance, mirror_transmittance : float
         Half-silvering (used when ``mirror`` is given by name).
+    effects : mapping of str to float, optional
+        Magnitudes of the instrument's imperfections by name
+        (:data:`gonio.simulator.effects.EFFECTS`, e.g. from
+        :func:`gonio.simulator.effects.realise`); missing names are 0. None or all zero is
+        the ideal instrument (bit-identical images, none of the effects' work done). A
+        magnitude outside its valid range is a ``ValueError``.
+    instrument_seed : int
+        Seed of the effects' realisation (the dome's figure map, the standard's deviation
+        from its certificate, each f-stop's error, the tilt's azimuth): the same seed and
+        magnitudes are the same physical instrument.
+
+    Notes
+    -----
+    The side-car (:meth:`metadata`) records what a real instrument writes (the marked
+    f-number, the nominal optics), not the effects: :func:`reproduce` and
+    :meth:`from_metadata` rebuild the ideal instrument. The campaign's clock for the lamp's
+    warm-up and drift is :attr:`clock_s` (seconds since the first capture; captures and
+    brackets take ``clock_s`` too).
     """
 
     def __init__(
@@ -438,6 +472,8 @@ class LBLInstrument:
         rho_standard: float = 0.99,
         mirror_reflectance: float = 0.5,
         mirror_transmittance: float = 0.45,
+        effects: Mapping[str, float] | None = None,
+        instrument_seed: int = 0,
     ) -> None:
         if isinstance(mirror, Mirror):
             self.mirror = mirror
@@ -480,6 +516,7 @@ class LBLInstrument:
             raise ValueError(f"rho_standard must be in (0, 1], got {rho_standard!r}")
         self.rho_standard = rs
         self._drop_caches()
+        self._set_effects(effects, instrument_seed)
 
     #: attributes that describe the instrument; every per-instrument cache derives from them
     _CONFIG: ClassVar[frozenset[str]] = frozenset(
@@ -511,6 +548,12 @@ class LBLInstrument:
         d["_resp"] = None
         d["_resp_c"] = None
         for name in ("_resp_rays_cache", "_dark_map", "_ones_c", "_field_arrays"):
+            d.pop(name, None)
+        # the effects' caches (their realisation is redrawn from the same seed)
+        for name in (
+            "_true_geometry", "_dome_trace", "_std_model", "_albedo_cache", "_albedo_images",
+            "_resp_field", "_box",
+        ):  # fmt: skip
             d.pop(name, None)
 
     # ------------------------------------------------------------------ description
@@ -582,6 +625,10 @@ class LBLInstrument:
             prnu, _ = self.sensor.maps(g.height, g.width)
             k = self.sensor.qe * (math.pi / 4.0) * self.sensor.pixel_pitch**2
             self._resp = (prnu * k).ravel()
+            v = self._fx.get("vignetting", 0.0)
+            if v:  # the fisheye's relative illumination, 1 - v (θ / θ_max)²
+                th = self.lens.field_angle(self.lens.pixel_grid().reshape(-1, 2))
+                self._resp = self._resp * (1.0 - v * np.minimum(th / self.lens.theta_max, 1) ** 2)
             self._resp_c = np.ascontiguousarray(self._resp[g.idx])
         return self._resp, self._resp_c
 
@@ -633,6 +680,296 @@ class LBLInstrument:
         t = (-qb + math.sqrt(qb * qb - qa * qc)) / qa
         return s + t * wi_dome
 
+    # ------------------------------------------------------------------ effects
+    _GEOMETRY_FX = ("dome_slope_error", "lens_body_height", "holder_rim_height")
+    _FRAME_FX = (
+        "fstop_series", "fstop_error", "iris_repeatability", "lamp_warmup", "lamp_drift",
+        "lamp_flicker", "pixel_fill", "diffraction_wavelength", "focus_error",
+    )  # fmt: skip
+    _SCENE_FX = ("veiling_glare", "reillumination", "ambient_on_sample")
+
+    def _set_effects(self, effects: Mapping[str, float] | None, seed: Any) -> None:
+        from gonio.simulator.effects import EFFECTS, check_magnitudes
+
+        if not isinstance(seed, int | np.integer) or int(seed) < 0:
+            raise ValueError(f"instrument_seed must be a non-negative integer, got {seed!r}")
+        self.instrument_seed = int(seed)
+        fx: dict[str, float] = {}
+        if effects is not None:
+            check_magnitudes(effects)
+            fx = {k: float(v) for k, v in effects.items() if float(v) != 0.0}
+        #: every effect's magnitude (0 = off)
+        self.effects = {name: fx.get(name, 0.0) for name in EFFECTS}
+        self._fx = fx
+        self._frame_fx = any(k in fx for k in self._FRAME_FX)
+        self._scene_fx = any(k in fx for k in self._SCENE_FX)
+        #: campaign time of the next capture (s), for the lamp's warm-up and drift
+        self.clock_s = 0.0
+
+    def certificate(self):
+        """The calibration certificate that comes with this instrument's diffuse standard
+        (:class:`gonio.io.certificate.Certificate`: what the laboratory knows of it)."""
+        from gonio.simulator.standard import make_certificate
+
+        fx = self._fx
+        return make_certificate(
+            self.rho_standard, fx.get("standard_non_lambertian", 0.0),
+            fx.get("standard_certificate_u", 0.0),
+        )  # fmt: skip
+
+    def _standard_model(self) -> BRDF:
+        """The real standard: Lambertian, or the PTFE shape times its deviation from the
+        certificate (drawn once from the instrument seed)."""
+        m = self.__dict__.get("_std_model")
+        if m is None:
+            fx = self._fx
+            scale = fx.get("standard_non_lambertian", 0.0)
+            u = fx.get("standard_certificate_u", 0.0)
+            if scale == 0.0 and u == 0.0:
+                from gonio.brdf.lambert import Lambert
+
+                m = Lambert(rho=self.rho_standard)
+            else:
+                from gonio.simulator.effects import effect_rng
+                from gonio.simulator.standard import true_standard
+
+                from gonio.brdf.base import CallableBRDF
+
+                rng = effect_rng(self.instrument_seed, "standard_certificate_u")
+                f = true_standard(self.rho_standard, scale, u, rng)
+                m = CallableBRDF(f, "ptfe_standard")
+            self._std_model = m
+        return m
+
+    def _scene_geometry(self, kind: str, rays: int) -> Geometry:
+        """The true geometry: the dome's figure error, occlusion, and (for a sample) the
+        sample plane at its height; the ideal traced geometry when none applies."""
+        fx = self._fx
+        h = fx.get("sample_height", 0.0) if kind == "brdf" else 0.0
+        if h == 0.0 and not any(k in fx for k in self._GEOMETRY_FX):
+            return self._geometry(rays)
+        if rays != 1:
+            raise ValueError(
+                "rays_per_pixel > 1 is not supported with the dome, occlusion or sample-height "
+                "effects (set them to 0 or use one ray per pixel)"
+            )
+        cache = self.__dict__.setdefault("_true_geometry", {})
+        g = cache.get(h)
+        if g is None:
+            from gonio.simulator import lbl_effects as le
+
+            m = self.mirror
+            slope = None
+            if fx.get("dome_slope_error", 0.0):
+                r = max(m.semi_axes)
+                mag, seed = fx["dome_slope_error"], self.instrument_seed
+                slope = lambda p: le.slope_field(p, mag, r, seed)  # noqa: E731
+            hit = self.__dict__.get("_dome_trace")  # (mirror points, reflected rays): once
+
+            def tracer(dirs):
+                nonlocal hit
+                if hit is None:
+                    hit = self._dome_trace = le.dome_rays(m, dirs, slope)
+                return le.to_plane(*hit, h)
+
+            keep = None
+            if fx.get("lens_body_height", 0.0) or fx.get("holder_rim_height", 0.0):
+
+                def keep(tr, q):
+                    return ~le.view_blocked(
+                        tr["sample_point"], tr["wo"], tr["point"], m, self.sample_radius, fx
+                    )
+
+            g = _trace_geometry(m, self.lens, self.sample_radius, 1, tracer, keep)
+            cache[h] = g
+        return g
+
+    def _candidate_response(self, g: Geometry, rays: int) -> NDArray:
+        """Response of the candidates of ``g`` (the ideal geometry's is cached as before)."""
+        if g is self._geometry(rays):
+            return self._resp_rays(g, rays)
+        rc = g.__dict__.get("_rc")
+        if rc is None:
+            rc = np.ascontiguousarray(self._response()[0][g.idx])
+            g.__dict__["_rc"] = rc
+        return rc
+
+    def _posed(self, g: Geometry, theta_i: float, wi_local, wi_dome, psi: float):
+        """The sample's geometry in its own (tilted, raised) frame: ``(geometry, wi_local)``.
+
+        The tilt is fixed in the sample (azimuth from the instrument seed), so it turns with
+        the holder: reflected directions are rotated by ``Rz(ψ) T Rz(-ψ)`` in the dome frame
+        (the kernels then apply ``Rz(-ψ)``) and the incidence by ``T``; candidates whose
+        direction falls below the tilted horizon are dropped. A raised sample moves the
+        beam footprint by ``h tan θi`` towards the source (the plane's tilt within the
+        footprint, below 0.1 mm, is neglected).
+        """
+        from dataclasses import replace
+
+        from gonio.simulator import lbl_effects as le
+        from gonio.simulator.effects import effect_rng
+
+        fx = self._fx
+        tilt = fx.get("sample_tilt", 0.0)
+        h = fx.get("sample_height", 0.0)
+        c_arr = np.ascontiguousarray
+        tilted = g.__dict__.setdefault("_tilted", {})
+        base = tilted.get(psi)  # the tilted directions, once per holder rotation
+        if base is None:
+            rc = self._candidate_response(g, 1)
+            if tilt:
+                az = effect_rng(self.instrument_seed, "sample_tilt").uniform(0, 2 * math.pi)
+                t = le.tilt_rotation(tilt, float(az))
+                c, s = math.cos(psi), math.sin(psi)
+                rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                mm = rz @ t @ rz.T
+                w = [mm[j, 0] * g.wx + mm[j, 1] * g.wy + mm[j, 2] * g.wz for j in range(3)]
+                keep = np.flatnonzero(w[2] > 1e-9)
+                if keep.size == g.idx.size:
+                    keep = None
+                else:
+                    w = [a[keep] for a in w]
+            else:
+                t, w, keep = np.eye(3), [g.wx, g.wy, g.wz], None
+            sub = (lambda a: a) if keep is None else (lambda a: c_arr(a[keep]))
+            base = tilted[psi] = (
+                t, [c_arr(a) for a in w], sub(g.idx), sub(g.qx), sub(g.qy), sub(rc),
+                1.0 / np.sqrt(w[2]),
+            )  # fmt: skip
+        t, (wx, wy, wz), idx, qx, qy, rc, isq = base
+        if h:
+            qx = qx - h * wi_dome[0] / wi_dome[2]
+            qy = qy - h * wi_dome[1] / wi_dome[2]
+        posed = replace(
+            g, idx=idx, wx=wx, wy=wy, wz=wz, qx=qx, qy=qy, isq=isq,
+            q_max=float(np.sqrt((qx * qx + qy * qy).max(initial=0.0))),
+        )  # fmt: skip
+        posed.__dict__["_rc"] = rc
+        posed.__dict__["_runs"] = g.runs() if idx is g.idx else False
+        posed.__dict__["_theta_o_key"] = (id(g), psi)  # (one albedo map per rotation)
+        return posed, t @ wi_local
+
+    def _albedo_fn(self, kind: str, model: BRDF) -> Callable[[NDArray], NDArray]:
+        """``ρ_dh(θ)`` of the sample (interpolated over 7 polar angles at φ = 0, to 0.1 %;
+        anisotropy neglected) or of the standard (``ρ_standard``: its PTFE shape keeps its
+        albedo)."""
+        if kind == "standard":
+            rho = self.rho_standard
+            return lambda th: np.full(np.shape(th), rho)
+        cache = self.__dict__.setdefault("_albedo_cache", {})
+        key = (model.name, repr(sorted(model.params.items())))
+        hit = cache.get(key)
+        if hit is None:
+            th = np.radians(np.linspace(0.0, 89.0, 7))
+            wi = np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], axis=-1)
+            a = np.asarray(model.albedo(wi, rtol=1e-3), dtype=np.float64)
+            if a.ndim == 2:
+                a = a.mean(axis=-1)
+            hit = (model, th, a)
+            cache[key] = hit
+        _, th, a = hit
+        return lambda t: np.interp(t, th, a)
+
+    def _scene_background(self, bg, kind, model, theta_i, g, rc, lit, gv, isq, kd0, ks0, k0):
+        """The scene's background electrons plus re-illumination and ambient light on the
+        sample (over every candidate pixel: the whole sample disk) and the veiling glare of
+        the whole image (over the image circle). A new array; ``bg`` is not changed."""
+        fx = self._fx
+        r = fx.get("reillumination", 0.0)
+        a = fx.get("ambient_on_sample", 0.0)
+        if model is not None and (r or a):
+            alb = self._albedo_fn(kind, model)
+            coef = 0.0
+            if r:
+                rs, rspot = self.sample_radius, self.source.spot_radius
+                lit_area = min(math.pi * rspot**2 / math.cos(theta_i), math.pi * rs**2)
+                e_re = r * float(alb(np.array(theta_i))) * math.cos(theta_i) * lit_area
+                coef += k0 * e_re / (math.pi * rs**2) / math.pi
+            if a:
+                m = self.mirror
+                coef += a * m.transmittance * m.reflectance * self.background.ambient
+            bg = bg + coef * self._albedo_image(kind, model, g, rc, alb)
+        glare = fx.get("veiling_glare", 0.0)
+        if glare:
+            resp_field = self.__dict__.get("_resp_field")
+            if resp_field is None:  # the response inside the image circle, 0 outside
+                resp_field = np.zeros_like(self._response()[0])
+                fi = self.geometry.field_idx
+                resp_field[fi] = self._response()[0][fi]
+                self._resp_field = resp_field
+            # (a plain sum, not BLAS's dot: a woken BLAS thread pool costs more than the sum)
+            sig = k0 * float(np.sum(rc * lit * (kd0 + ks0 * gv * isq)))
+            total = float(bg.sum()) + sig  # (the background is 0 outside the image circle)
+            bg = bg + resp_field * (glare * total / float(resp_field.sum()))
+        return bg
+
+    def _albedo_image(self, kind, model, g, rc, alb) -> NDArray:
+        """Full image of ``response x ρ_dh(θo)`` over the candidates of ``g`` (0 elsewhere):
+        the pixels' electrons per unit diffuse irradiance on the sample (cached per
+        geometry, holder rotation and model)."""
+        cache = self.__dict__.setdefault("_albedo_images", {})
+        key = (g.__dict__.get("_theta_o_key", id(g)), kind, model.name,
+               repr(sorted(model.params.items())) if kind == "brdf" else "")  # fmt: skip
+        img = cache.get(key)
+        if img is None:
+            if len(cache) > 8:
+                cache.clear()
+            img = np.zeros(g.n_pixels)
+            np.add.at(img, g.idx, rc * alb(np.arccos(np.clip(g.wz, -1.0, 1.0))))
+            cache[key] = img
+        return img
+
+    def _frame_electrons(
+        self, sc: _Scene, f_number: float, key: str = "", clock_s: float | None = None
+    ) -> NDArray:
+        """Noise-free electrons of one frame: the scene at the lens's true aperture (the
+        engraved series, this lens's stop error, the iris's repeatability), the lamp's
+        output at :attr:`clock_s` (warm-up, drift, flicker), then the point-spread function
+        (pixel area, diffraction, defocus). Just :meth:`_compose` when none is on."""
+        fx = self._fx
+        if not self._frame_fx:
+            return self._compose(sc, f_number)
+        from gonio.simulator import lbl_effects as le
+        from gonio.simulator.effects import effect_rng
+
+        n = le.true_f_number(f_number, fx.get("fstop_series", 0.0))
+        area = le.fstop_area_factor(f_number, fx.get("fstop_error", 0.0), self.instrument_seed)
+        t = self.clock_s if clock_s is None else float(clock_s)
+        lamp = le.lamp_factor(t, fx.get("lamp_warmup", 0.0), fx.get("lamp_drift", 0.0))
+        iris, flick = fx.get("iris_repeatability", 0.0), fx.get("lamp_flicker", 0.0)
+        if iris or flick:
+            rng = effect_rng(self.instrument_seed, "frame", key)
+            area *= max(1.0 + iris * float(rng.normal()), 0.05)
+            lamp *= max(1.0 + flick * float(rng.normal()), 0.05)
+        e = self._compose(sc, n / math.sqrt(area), lamp=lamp)
+        sigma = le.psf_sigma_px(
+            n, fx, self.sensor.pixel_pitch, self.lens.fx, 0.5 * self.mirror.radius
+        )
+        if sigma > 0.0:  # (the dark current is the pixel's own: not blurred)
+            import cv2
+
+            dark = sc.dark * sc.exposure
+            e -= dark
+            img = e.reshape(self.lens.height, self.lens.width)
+            r0, r1, c0, c1 = self._light_box()
+            box = img[r0:r1, c0:c1].astype(np.float32)  # (float32: 1e-7 of the signal)
+            img[r0:r1, c0:c1] = cv2.GaussianBlur(box, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
+            e += dark
+        return e
+
+    def _light_box(self) -> tuple[int, int, int, int]:
+        """Rows and columns of the image circle, with an 8-pixel margin (light falls nowhere
+        else, so the point-spread function need not be applied outside)."""
+        box = self.__dict__.get("_box")
+        if box is None:
+            h, w = self.lens.height, self.lens.width
+            rows, cols = np.divmod(self.geometry.field_idx, w)
+            box = self._box = (
+                max(int(rows.min()) - 8, 0), min(int(rows.max()) + 9, h),
+                max(int(cols.min()) - 8, 0), min(int(cols.max()) + 9, w),
+            )  # fmt: skip
+        return box
+
     # ------------------------------------------------------------------ rendering core
     def _frames(self, theta_i: float, phi_i: float) -> tuple[NDArray, NDArray, float]:
         """(wi_local, wi_dome, psi): psi = dome azimuth of the sample's x axis."""
@@ -662,6 +999,7 @@ class LBLInstrument:
         source_samples: int | None,
         kernel: bool,
         visible_only: bool,
+        wi_local: NDArray | None = None,
     ) -> tuple[NDArray, NDArray, NDArray, float, float]:
         """Per-candidate signal terms ``(lit, g, isq, kdc, ksc)``.
 
@@ -672,7 +1010,9 @@ class LBLInstrument:
         (``g`` = Σ w f_r cos θ_i, ``isq`` = 1). ``g`` (the argument) is the traced geometry
         (one ray per pixel, or supersampled).
         """
-        wi_local, wi_dome, psi = self._frames(theta_i, phi_i)
+        wi_nominal, wi_dome, psi = self._frames(theta_i, phi_i)
+        if wi_local is None:  # (a tilted sample passes its own)
+            wi_local = wi_nominal
         c, s = math.cos(psi), math.sin(psi)
         bx, by = float(wi_dome[0]), float(wi_dome[1])
         r2 = self.source.spot_radius**2
@@ -848,14 +1188,16 @@ class LBLInstrument:
         """The noise-free scene, independent of the f-number (see :class:`_Scene`)."""
         if rays != 1 and not visible_only:
             raise ValueError("rays_per_pixel > 1 needs visible_only=True")
-        g = self._geometry(rays)
-        _, wi_dome, psi = self._frames(theta_i, phi_i)
+        fx = self._fx
+        g = self._scene_geometry(kind, rays) if fx else self._geometry(rays)
+        wi_local, wi_dome, psi = self._frames(theta_i, phi_i)
+        wi_sig = None
+        if kind == "brdf" and (fx.get("sample_tilt") or fx.get("sample_height")):
+            g, wi_sig = self._posed(g, theta_i, wi_local, wi_dome, psi)
         bg = self._background_photons(wi_dome)
         dark = self._dark()
         if kind == "standard":
-            from gonio.brdf.lambert import Lambert
-
-            model = Lambert(rho=self.rho_standard)
+            model = self._standard_model()
         if model is not None and model.n_bands and band is not None:
             if not (0 <= band < model.n_bands):
                 raise ValueError(f"band must be in [0, {model.n_bands}), got {band!r}")
@@ -866,22 +1208,46 @@ class LBLInstrument:
             lit, gv, isq, kd0, ks0 = idx.astype(np.uint8), rc, rc, 0.0, 0.0
             runs = (idx, idx)
         else:
-            idx, rc = g.idx, self._resp_rays(g, rays)
+            idx = g.idx
+            rc = self._candidate_response(g, rays) if fx else self._resp_rays(g, rays)
             lit, gv, isq, kd0, ks0 = self._signal_terms(
-                g, model, theta_i, phi_i, 1.0, band, source_samples, kernel, visible_only
-            )
+                g, model, theta_i, phi_i, 1.0, band, source_samples, kernel, visible_only,
+                wi_sig,
+            )  # fmt: skip
+            if fx.get("holder_rim_height"):
+                from gonio.simulator.lbl_effects import beam_shadowed
+
+                # only points within h tan θi of the rim can be in its shadow
+                h_rim = fx["holder_rim_height"]
+                r_q = g.__dict__.get("_r_q")
+                if r_q is None:
+                    r_q = g.__dict__["_r_q"] = np.hypot(g.qx, g.qy)
+                near = np.flatnonzero(
+                    r_q > 1.25 * self.sample_radius - h_rim * math.tan(theta_i) - 1e-12
+                )
+                if near.size:
+                    shadow = beam_shadowed(
+                        g.qx[near], g.qy[near], wi_dome, self.mirror.half_separation,
+                        self.sample_radius, h_rim,
+                    )  # fmt: skip
+                    lit = lit.copy()
+                    lit[near[shadow]] = 0
             runs = g.runs()
+        if self._scene_fx:
+            bg = self._scene_background(bg, kind, model, theta_i, g, rc, lit, gv, isq, kd0, ks0, k0)
         delta = None
         if model is not None and model.has_delta:
             wi_local, _, _ = self._frames(theta_i, phi_i)
             delta = self._delta_terms(model, wi_local, wi_dome, psi, band)
         return _Scene(bg, dark, exposure, k0, idx, rc, lit, gv, isq, kd0, ks0, delta, rays, runs)
 
-    def _compose(self, sc: _Scene, f_number: float, kernel=True, digitise=False) -> NDArray:
+    def _compose(
+        self, sc: _Scene, f_number: float, kernel=True, digitise=False, lamp: float = 1.0
+    ) -> NDArray:
         """Noise-free electrons of a scene at ``f_number`` (flat float64), or with
-        ``digitise`` the flat uint16 image."""
+        ``digitise`` the flat uint16 image; ``lamp`` scales the beam's signal."""
         tk = sc.exposure / f_number**2
-        k = sc.k0 * tk
+        k = sc.k0 * tk * lamp if lamp != 1.0 else sc.k0 * tk
         kdc, ksc = k * sc.kd0, k * sc.ks0
         sen = self.sensor
         n = self.lens.height * self.lens.width
@@ -914,31 +1280,35 @@ class LBLInstrument:
         return out
 
     def _shoot(
-        self, sc: _Scene, f_number: float, noise: bool, rng, binning, skip_noise_draws=True
-    ) -> tuple[NDArray[np.uint16], FisheyeLens]:
-        """One frame of a scene: noise (or none), ADC, optional binning."""
+        self, sc: _Scene, f_number: float, noise: bool, rng, binning, skip_noise_draws=True,
+        frame: tuple[str, float | None] = ("", None),
+    ) -> tuple[NDArray[np.uint16], FisheyeLens]:  # fmt: skip
+        """One frame of a scene: noise (or none), ADC, optional binning; ``frame`` = (a name
+        of the frame for the per-frame effects' draws, its campaign time or None for
+        :attr:`clock_s`), see :meth:`_frame_electrons`."""
         sen = self.sensor
         h, w = self.lens.height, self.lens.width
         if not sen.ideal_readout or sen.has_charge_effects:
             # a sensor with effects: charge effects, readout and ADC of the composed electrons
-            e = self._compose(sc, f_number)
+            e = self._frame_electrons(sc, f_number, *frame)
             dark_e = sc.dark * sc.exposure if sen.smear > 0.0 else None  # smear needs it
             return self._finish_effects(e, dark_e, noise, rng, binning)
-        if not noise and skip_noise_draws and binning is None and sen.linear and sc.delta is None:
+        fused = not self._frame_fx and sc.delta is None
+        if not noise and skip_noise_draws and binning is None and sen.linear and fused:
             # no random draws, ADC fused into the render pass
             return self._compose(sc, f_number, digitise=True).reshape(h, w), self.lens
         if noise and binning is None and sen.linear:
             # shot + read noise and the ADC in one compiled pass over the composed electrons
             from gonio.simulator import _kernels
 
-            e = self._compose(sc, f_number)
+            e = self._frame_electrons(sc, f_number, *frame)
             img = np.empty(h * w, dtype=np.uint16)
             _kernels.noise_u16(
                 e, _kernels.seed_state(rng), sen.normal_threshold, sen.read_noise,
                 *sen.linear_adc, img,
             )  # fmt: skip
             return img.reshape(h, w), self.lens
-        e = self._compose(sc, f_number)
+        e = self._frame_electrons(sc, f_number, *frame)
         if noise:
             # shot + read noise drawn in place
             from gonio.simulator import _kernels
@@ -1054,6 +1424,7 @@ class LBLInstrument:
         source_samples: int | None = None,
         rays_per_pixel: int = 1,
         skip_noise_draws: bool = True,
+        clock_s: float | None = None,
     ) -> tuple[NDArray[np.uint16], dict[str, Any]]:
         """One raw image of ``sample`` lit from (θ_i, φ_i).
 
@@ -1090,6 +1461,9 @@ class LBLInstrument:
         skip_noise_draws : bool
             Benchmark switch of the rule "no random draws when noise is off": False draws
             the shot and read noise anyway and adds them with zero amplitude (same image).
+        clock_s : float, optional
+            Campaign time of the capture (s) for the lamp's warm-up and drift; default
+            :attr:`clock_s`.
 
         Returns
         -------
@@ -1103,7 +1477,8 @@ class LBLInstrument:
         rays = _check_rays(rays_per_pixel)
         gen, seed = _rng_and_seed(rng) if noise else (None, None)
         sc = self._scene(kind, model, theta_i, phi_i, exposure, band, source_samples, rays=rays)
-        img, lens = self._shoot(sc, f_number, noise, gen, binning, skip_noise_draws)
+        key = _frame_key(kind, theta_i, phi_i, exposure, f_number, seed, 0)
+        img, lens = self._shoot(sc, f_number, noise, gen, binning, skip_noise_draws, (key, clock_s))
         meta = self.metadata(
             kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
             band, source_samples, lens, img, rays,
@@ -1417,6 +1792,7 @@ class LBLInstrument:
         noise: bool = True,
         binning: tuple[int, int] | bool | None = None,
         rays_per_pixel: int = 1,
+        clock_s: float | None = None,
         **plan_kw: Any,
     ) -> list[tuple[NDArray[np.uint16], dict[str, Any]]]:
         """Capture the f-stops :meth:`plan_bracket` chooses; each metadata has ``bracket``.
@@ -1425,7 +1801,8 @@ class LBLInstrument:
         composed from it (signal and background scale with 1/N², dark current does not),
         so with noise off each frame equals ``capture(..., f_number=N)`` bit for bit.
         Noise streams are spawned per stop from ``rng``. ``plan_kw``: ``min_signal_dn``,
-        ``headroom``, ``skip_stops`` (see :meth:`plan_bracket`).
+        ``headroom``, ``skip_stops`` (see :meth:`plan_bracket`). ``clock_s``: the campaign
+        time of the bracket (lamp effects; default :attr:`clock_s`).
         """
         kind, model, material = _resolve_sample(sample)
         theta_i, phi_i, exposure, _ = self._check_args(theta_i, phi_i, exposure, 1.0)
@@ -1448,7 +1825,8 @@ class LBLInstrument:
         out = []
         for i, n in enumerate(plan["f_numbers"]):
             n = self._check_args(theta_i, phi_i, exposure, n)[3]
-            img, lens = self._shoot(sc, n, noise, gens[i], binning)
+            key = _frame_key(kind, theta_i, phi_i, exposure, n, seed, i)
+            img, lens = self._shoot(sc, n, noise, gens[i], binning, frame=(key, clock_s))
             meta = self.metadata(
                 kind, model, material, theta_i, phi_i, exposure, n, seed, noise, binning,
                 None, None, lens, img, rays,

@@ -606,11 +606,14 @@ def run_lbl_through_drivers(
 ) -> Any:
     """An LBL campaign (:func:`gonio.campaign.run`) on the fake devices through the drivers.
 
-    The plan's ``exposures_s`` (default ``(0.01,)``) is the bracket at ``f_number``; the
+    The plan's instrument (``preset``, ``instrument_seed``) is simulated behind the fakes
+    (``binning`` is not: the fake camera sends full frames). The plan's ``exposures_s``
+    (default ``(0.01,)``) is the bracket at ``f_number``; the
     captures are checkpointed per group by ``gonio.campaign`` (``raw/<key>/done.json``), so
     ``resume=True`` continues an interrupted run without capturing a group twice.
     """
     from gonio import campaign
+    from gonio.simulator.effects import realise
 
     plan = (plan or campaign.Plan()).resolved()
     exp = plan.exposures_s or (0.01,)
@@ -622,6 +625,8 @@ def run_lbl_through_drivers(
         time_scale=time_scale,
         exposures_s=exp,
         f_number=f_number,
+        effects=realise(plan.preset, plan.instrument_seed),
+        instrument_seed=plan.instrument_seed,
     ) as (dev, _parts):
         return campaign.run(plan, out, resume=resume, quiet=quiet, instrument=dev)
 
@@ -857,10 +862,14 @@ def fake_lbl_rig(
     time_scale: float = 1e4,
     exposures_s: Sequence[float] = (0.01,),
     f_number: float = 4.0,
+    effects: Mapping[str, float] | None = None,
+    instrument_seed: int = 0,
 ) -> Iterator[tuple[LBLDriverInstrument, dict[str, Any]]]:
     """The LBL instrument on fake devices (an ESP300 with the source arm, sample rotation
     and tilt, a second one with the sample changer, the PTP camera on the fake pyusb
-    backend), opened with the real drivers: ``(LBLDriverInstrument, parts)``."""
+    backend), opened with the real drivers: ``(LBLDriverInstrument, parts)``. ``effects``
+    and ``instrument_seed``: the simulated instrument's imperfections
+    (:class:`gonio.simulator.LBLInstrument`; default none)."""
     from gonio import materials
     from gonio.drivers.esp300 import ESP300
     from gonio.drivers.fake import usb as fakeusb
@@ -870,7 +879,7 @@ def fake_lbl_rig(
     from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
     from gonio.simulator.bench import Bench, Stage, lbl_camera_render
 
-    inst = LBLInstrument(mirror=mirror)
+    inst = LBLInstrument(mirror=mirror, effects=effects, instrument_seed=instrument_seed)
     gen = np.random.default_rng(seed)
     kw = dict(source_axis="source", sample_axis="sample", rng=gen, noise=noise)
     cams = {

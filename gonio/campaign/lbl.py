@@ -224,7 +224,42 @@ class _SimulatedLBL:
 
             radius = inspect.signature(LBLInstrument).parameters["radius"].default
             kw["half_separation"] = plan.d_over_r * radius
-        self.inst = LBLInstrument(mirror=plan.mirror, **kw)
+        from gonio.simulator.effects import realise
+
+        #: the realised magnitudes of this campaign's instrument (the truth)
+        self.effects = realise(plan.preset, plan.instrument_seed)
+        self.inst = LBLInstrument(
+            mirror=plan.mirror, effects=self.effects, instrument_seed=plan.instrument_seed, **kw
+        )
+        b = plan.binning
+        self.binning = tuple(b) if b is not None and tuple(b) != (0, 0) else None
+        self._clock: dict[tuple, float] | None = None
+
+    def certificate(self) -> Any:
+        """The certificate of the instrument's diffuse standard (what the laboratory knows):
+        :class:`gonio.io.certificate.Certificate`."""
+        return self.inst.certificate()
+
+    def clock_s(self, sample: Any, theta_i: float, phi_i: float) -> float:
+        """When the real instrument would take this capture (:func:`~gonio.simulator.
+        lbl_timing.schedule` of the plan, three frames a capture): the lamp's clock."""
+        if self._clock is None:
+            from gonio.simulator.lbl_timing import TIMINGS, schedule
+
+            timing = TIMINGS["ward1992" if self.plan.preset == "ward1992" else "modern"]
+            sch = schedule(self.plan.theta_i_deg, self.plan.rotations_deg, 3, timing)
+            self._clock = {
+                (c["kind"], round(c["theta_i_deg"], 6), c["rotation_deg"]): c["start_s"]
+                for c in sch
+            }
+        if sample is None:
+            kind = "background"
+        elif isinstance(sample, str) and sample == "standard":
+            kind = "standard"
+        else:
+            kind = "measured"
+        rot = round(math.degrees(phi_i) % 360.0, 6) if kind == "measured" else None
+        return self._clock.get((kind, round(math.degrees(theta_i), 6), rot), 0.0)
 
     def prepare(self, sample: Any = "standard") -> None:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
@@ -239,6 +274,10 @@ class _SimulatedLBL:
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
+        if self.binning is not None:
+            kw["binning"] = self.binning
+        if self.inst._frame_fx:  # the lamp's warm-up and drift follow the real schedule
+            kw["clock_s"] = self.clock_s(sample, theta_i, phi_i)
         if self.plan.exposures_s:
             frames = []
             rng = np.random.default_rng(seed)
@@ -448,6 +487,14 @@ def _report(
                         n_loaded)  # fmt: skip
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
+    effects = getattr(setup.instrument, "effects", None)
+    if effects is not None:  # the simulated instrument's truth, beside the fit's
+        summary["instrument"] = {
+            "preset": plan.preset,
+            "instrument_seed": plan.instrument_seed,
+            "binning": list(plan.binning) if plan.binning else None,
+            "effects": {k: v for k, v in effects.items() if v != 0.0},
+        }
     return summary
 
 

@@ -72,6 +72,27 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--d-over-r", type=float, default=None, help="LBL dome D/R (default the instrument's)"
     )
+    parser.add_argument(
+        "--instrument-preset",
+        "--preset",
+        dest="preset",
+        default="modern",
+        choices=["modern", "ward1992", "ideal"],
+        help="the LBL instrument's build and its imperfections (default modern; ideal = none)",
+    )
+    parser.add_argument(
+        "--instrument-seed",
+        type=int,
+        default=None,
+        help="which instrument of the preset (default the campaign seed)",
+    )
+    parser.add_argument(
+        "--binning",
+        default=None,
+        metavar="WxH",
+        help="digitise the LBL images to WxH (default the preset's: 108x80 for ward1992; "
+        "0x0 full resolution)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument(
         "--no-debias",
@@ -109,6 +130,17 @@ def parse_angles(text: str, option: str = "--angles") -> tuple[float, ...]:
         raise ValueError(
             f"{option} {text!r}: expected 'START:STOP:N' or a comma-separated list of degrees"
         ) from None
+
+
+def parse_binning(text: str | None) -> tuple[int, int] | None:
+    """'108x80' -> (108, 80); None -> None (the preset's)."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--binning {text!r}: expected WxH, e.g. 108x80 (0x0: none)") from None
+    return (w, h)
 
 
 def parse_noise(text: str) -> float:
@@ -164,6 +196,9 @@ def run(args) -> int:
         plots=not args.no_plots,
         d_over_r=args.d_over_r,
         debias=not args.no_debias,
+        preset=args.preset,
+        instrument_seed=args.instrument_seed,
+        binning=parse_binning(args.binning),
     )
     if args.angles is not None:
         kw["theta_i_deg"] = parse_angles(args.angles)

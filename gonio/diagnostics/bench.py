@@ -738,15 +738,20 @@ SHARP_WARD = {"rho_d": 0.05, "rho_s": 0.3, "alpha_x": 0.01, "alpha_y": 0.02}
 
 
 def _instrument(
-    mirror: str = "ellipsoid", width: int = 640, height: int = 480, sensor: Any = None
-) -> Any:
+    mirror: str = "ellipsoid", width: int = 640, height: int = 480, sensor: Any = None,
+    effects: Mapping[str, float] | None = None,
+) -> Any:  # fmt: skip
     """A cached simulated LBL instrument (its traced geometry is kept between runs);
-    ``sensor``: a :class:`~gonio.simulator.Sensor` (default: the instrument's default)."""
-    key = (mirror, width, height, sensor)
+    ``sensor``: a :class:`~gonio.simulator.Sensor` (default: the instrument's default);
+    ``effects``: its imperfections (:mod:`gonio.simulator.effects`, default none)."""
+    fx = tuple(sorted((effects or {}).items()))
+    key = (mirror, width, height, sensor, fx)
     if key not in _INSTRUMENTS:
         from gonio.simulator import LBLInstrument
 
-        _INSTRUMENTS[key] = LBLInstrument(mirror=mirror, width=width, height=height, sensor=sensor)
+        _INSTRUMENTS[key] = LBLInstrument(
+            mirror=mirror, width=width, height=height, sensor=sensor, effects=dict(fx) or None
+        )
     return _INSTRUMENTS[key]
 
 
@@ -765,8 +770,12 @@ def lbl_pipeline(
     seed: int = 0,
     residual: str = "absolute",
     sensor: Any = None,
+    effects: Mapping[str, float] | None = None,
 ) -> dict[str, float]:
     """Capture → reduce → fit on the simulated LBL instrument; the errors of the fit.
+
+    ``effects``: the instrument's imperfections (:mod:`gonio.simulator.effects`), not
+    corrected (the reduction is a laboratory's that does not know them).
 
     For each incidence θi (at φi = 0): the sample, the diffuse standard and the background
     are captured at the f-stops :meth:`~gonio.simulator.LBLInstrument.plan_bracket` keeps for
@@ -789,7 +798,7 @@ def lbl_pipeline(
         truth = create("ward", **material)
     else:
         truth = materials.get(material)
-    inst = _instrument(mirror, *size, sensor)
+    inst = _instrument(mirror, *size, sensor, effects=effects)
     tables = []
     for j, th in enumerate(theta_i_deg):
         ti = math.radians(th)
@@ -1062,6 +1071,60 @@ register_knob(
         prepare=_warm_rays,
     )
 )
+
+
+# --------------------------------------------------------------------------- instrument effects
+def _effect_settings() -> tuple[str, ...]:
+    from gonio.simulator.effects import EFFECTS, PRESETS
+
+    return ("ideal",) + tuple(n for n in EFFECTS if PRESETS["modern"][n].typical != 0.0)
+
+
+def _effect_magnitudes(setting: str, ablate: bool) -> dict[str, float]:
+    """``setting`` of the effect knobs: one effect alone at the modern preset's typical
+    magnitude, or (``ablate``) the modern preset's typical instrument without it."""
+    from gonio.simulator.effects import PRESETS
+
+    typical = {n: d.typical for n, d in PRESETS["modern"].items()}
+    if setting == "ideal":
+        return dict(typical) if ablate else {}
+    if setting not in typical:
+        raise ValueError(f"unknown effect setting {setting!r}")
+    if ablate:
+        return {n: v for n, v in typical.items() if n != setting}
+    return {setting: typical[setting]}
+
+
+def _effect_knob(ablate: bool) -> Callable[[Any, int], dict[str, float]]:
+    def run(setting: str, seed: int) -> dict[str, float]:
+        return lbl_pipeline(seed=seed, effects=_effect_magnitudes(setting, ablate))
+
+    return run
+
+
+_EFFECT_NEEDS = (*_LBL_NEEDS, "gonio.simulator.effects:PRESETS")
+
+for _name, _ablate, _what in (
+    ("lbl_effect", False, "one imperfection of the LBL instrument at a time "
+     "(gonio.simulator.effects, at the modern preset's typical magnitude; 'ideal' = none)"),
+    ("lbl_effect_ablation", True, "the modern preset's typical LBL instrument with one "
+     "imperfection removed ('ideal' = all of them on)"),
+):  # fmt: skip
+    register_knob(
+        Knob(
+            _name,
+            f"{_what}, uncorrected, through capture → eq. 2 → fit (rolled brass, θi = 20, "
+            "50°): the error it causes (or leaves) and what it costs",
+            settings=_effect_settings(),
+            quick_settings=("ideal", "veiling_glare", "standard_non_lambertian"),
+            run=_effect_knob(_ablate),
+            primary="max_rel_err",
+            unit="effect",
+            needs=_EFFECT_NEEDS,
+            waiting_on="simulator: effects",
+            prepare=_warm_lbl,
+        )
+    )
 
 
 # --------------------------------------------------------------------------- Oren-Nayar quadrature

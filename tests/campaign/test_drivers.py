@@ -163,7 +163,7 @@ def test_lbl_campaign_through_drivers_matches_in_process_without_noise():
 
     plan = campaign.Plan(
         material="rolled_brass", theta_i_deg=(40.0,), rotations_deg=(0.0,), noise=0.0,
-        exposures_s=(0.002,), plots=False,
+        exposures_s=(0.002,), plots=False, preset="ideal",
     )  # fmt: skip
     ref = campaign.run(plan, None)
     with fake_lbl_rig("rolled_brass", noise=False, exposures_s=(0.002,)) as (dev, parts):

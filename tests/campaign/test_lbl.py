@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from gonio import campaign
+from gonio import campaign, materials
 
-SMALL = dict(theta_i_deg=(20.0, 45.0, 70.0), rotations_deg=(0.0, 90.0), plots=False)
+#: the pipeline's own accuracy is tested on the ideal instrument (every effect off)
+SMALL = dict(theta_i_deg=(20.0, 45.0, 70.0), rotations_deg=(0.0, 90.0), plots=False, preset="ideal")
 
 
 class _Interrupting:
@@ -139,7 +141,7 @@ def test_resume_refuses_a_different_plan(tmp_path):
 
 
 def test_noise_off_recovers_ward_parameters_within_one_percent():
-    plan = campaign.Plan(noise=0, theta_i_deg=(10.0, 30.0, 50.0, 70.0), plots=False)
+    plan = campaign.Plan(noise=0, theta_i_deg=(10.0, 30.0, 50.0, 70.0), plots=False, preset="ideal")
     res = campaign.run(plan)  # in memory
     assert res.out is None
     for k, err in res.summary["relative_error"].items():
@@ -239,7 +241,9 @@ def test_a_user_brdf_can_be_measured_under_a_free_label():
     from gonio import brdf
 
     truth = brdf.create("ward", rho_d=0.3, rho_s=0.05, alpha_x=0.1, alpha_y=0.1)
-    plan = campaign.Plan(material="my_sample", theta_i_deg=(30.0, 60.0), plots=False)
+    plan = campaign.Plan(
+        material="my_sample", theta_i_deg=(30.0, 60.0), plots=False, preset="ideal"
+    )
     res = campaign.run(plan, truth=truth)
     assert res.summary["material"] == "my_sample" and res.summary["truth"]["rho_d"] == 0.3
     assert res.summary["converged"] and max(res.summary["relative_error"].values()) < 0.02
@@ -247,3 +251,66 @@ def test_a_user_brdf_can_be_measured_under_a_free_label():
         campaign.run(plan)  # without a truth the label must be a preset
     with pytest.raises(ValueError, match="truth must be a BRDF"):
         campaign.run(plan, truth="ward")
+
+
+# ----------------------------------------------------------------------------- instrument presets
+def test_default_campaign_runs_the_realistic_modern_instrument():
+    plan = campaign.Plan().resolved()
+    assert plan.preset == "modern" and plan.instrument_seed == plan.seed and plan.binning is None
+    assert campaign.Plan(preset="ward1992").resolved().binning == (108, 80)
+    assert campaign.Plan(preset="ward1992", binning=(0, 0)).resolved().binning == (0, 0)
+    assert campaign.Plan(seed=3, instrument_seed=7).resolved().instrument_seed == 7
+    plan2 = campaign.Plan.from_dict(json.loads(json.dumps(plan.to_dict())))
+    assert plan2.resolved() == plan
+
+
+@pytest.mark.parametrize(
+    ("kw", "text"),
+    [
+        ({"preset": "lab"}, "preset 'lab'; expected one of ideal, ward1992, modern"),
+        ({"instrument_seed": -2}, "instrument_seed -2"),
+        ({"binning": (108,)}, r"binning \(108,\): expected \(width, height\)"),
+        ({"binning": (0, 80)}, "binning"),
+    ],
+)
+def test_bad_instrument_options_are_refused(kw, text):
+    with pytest.raises(ValueError, match=text):
+        campaign.Plan(**kw).resolved()
+
+
+def test_ideal_preset_is_todays_instrument_and_the_summary_records_the_truth():
+    """preset="ideal" gives the same samples as an instrument with every effect off, and the
+    summary names the realised instrument (the one place truth and result meet)."""
+    from gonio.simulator import LBLInstrument
+
+    plan = campaign.Plan(theta_i_deg=(30.0,), plots=False, preset="ideal", seed=2)
+    res = campaign.run(plan)
+    inner = campaign.lbl._SimulatedLBL(plan.resolved())
+    inner.inst = LBLInstrument(mirror="ellipsoid")
+    ref = campaign.run(plan, instrument=inner)
+    assert np.array_equal(res.samples.value, ref.samples.value)
+    assert res.summary["instrument"] == {
+        "preset": "ideal", "instrument_seed": 2, "binning": None, "effects": {},
+    }  # fmt: skip
+    modern = campaign.run(replace(plan, preset="modern"))
+    fx = modern.summary["instrument"]["effects"]
+    assert fx["veiling_glare"] > 0 and fx["standard_non_lambertian"] > 0
+    assert not np.array_equal(modern.samples.value[:100], res.samples.value[:100])
+
+
+def test_ward1992_campaign_digitises_to_108_by_80(tmp_path):
+    plan = campaign.Plan(theta_i_deg=(30.0,), plots=False, preset="ward1992")
+    res = campaign.run(plan, tmp_path / "w")
+    from gonio.io.images import read_image
+
+    img, meta = read_image(next((tmp_path / "w" / "raw").rglob("measured_00.tif")))
+    assert img.shape == (80, 108) and meta["lens"]["width"] == 108
+    assert res.summary["instrument"]["binning"] == [108, 80] and len(res.samples) > 50
+
+
+def test_lamp_clock_follows_the_real_schedule():
+    inner = campaign.lbl._SimulatedLBL(campaign.Plan(theta_i_deg=(0.0, 40.0)).resolved())
+    t_std = inner.clock_s("standard", 0.0, 0.0)
+    t_bg = inner.clock_s(None, math.radians(40.0), 0.0)
+    t_meas = inner.clock_s(materials.get("rolled_brass"), 0.0, 0.0)
+    assert 0.0 <= t_std < t_bg < t_meas  # standard sweep, background sweep, sample sweep

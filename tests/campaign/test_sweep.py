@@ -424,7 +424,7 @@ def test_campaign_sweep_identical_on_dask(tmp_path, dask_client):
             "materials": ["rolled_brass"],
             "seeds": 1,
             "settings": {"mirror": ["ellipsoid", "hemisphere"]},
-            "fixed": {"theta_i_deg": [30.0]},
+            "fixed": {"theta_i_deg": [30.0], "preset": "ideal"},
         }
     )
     a = sweep.run_sweep(spec, tmp_path / "a", plot=False)
