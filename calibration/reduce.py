@@ -76,10 +76,14 @@ class Capture:
         Raw frames (2-D arrays of DN) and their side-car dicts, one per exposure.
     darks : list of arrays or None, optional
         A dark frame per exposure (``None`` entries allowed).
+    sources : list of str, optional
+        Where each frame came from (its file; :func:`load_capture` fills it in), named by
+        the side-car consistency errors (:mod:`gonio.calibration.consistency`).
     """
 
     frames: list[tuple[NDArray, dict[str, Any]]]
     darks: list[NDArray | None] | None = None
+    sources: list[str] | None = None
 
     def __post_init__(self) -> None:
         if not self.frames:
@@ -92,6 +96,8 @@ class Capture:
         self.frames = fr
         if self.darks is not None and len(self.darks) != len(self.frames):
             raise ValueError(f"got {len(self.frames)} frames but {len(self.darks)} dark frames")
+        if self.sources is not None and len(self.sources) != len(self.frames):
+            raise ValueError(f"got {len(self.frames)} frames but {len(self.sources)} sources")
 
     @classmethod
     def single(cls, image: ArrayLike, meta: Mapping[str, Any], dark: ArrayLike | None = None):
@@ -132,7 +138,7 @@ def load_capture(
     darks = None
     if dark_paths is not None:
         darks = [None if d is None else read_image(d)[0] for d in dark_paths]
-    return Capture(frames, darks)
+    return Capture(frames, darks, [str(p) for p in paths])
 
 
 def is_linear(meta: Mapping[str, Any]) -> bool:
@@ -271,8 +277,13 @@ def _angle(meta: Mapping[str, Any], key: str, default: float | None = None) -> f
 def _check_triple(
     measured: Capture, standard: Capture, background: Capture, rho_standard: float | None
 ) -> tuple[dict[str, Any], tuple[int, ...], float]:
-    """Type and shape checks of the three captures; ρ_standard from the side-cars if needed."""
-    for name, c in (("measured", measured), ("standard", standard), ("background", background)):
+    """Type, shape and side-car consistency checks of the three captures
+    (:func:`~gonio.calibration.consistency.check_captures`); ρ_standard from the side-cars
+    if needed."""
+    from gonio.calibration.consistency import check_captures
+
+    triple = {"measured": measured, "standard": standard, "background": background}
+    for name, c in triple.items():
         if not isinstance(c, Capture):
             raise ValueError(f"{name} must be a Capture, got {type(c).__name__}")
     meta = measured.meta
@@ -289,7 +300,14 @@ def _check_triple(
                 break
     if rho_standard is None:
         raise ValueError("rho_standard not given and not found in the side-cars")
-    return meta, shape, float(rho_standard)
+    check_captures(triple)
+    try:
+        rho = float(rho_standard)
+    except (TypeError, ValueError):
+        raise ValueError(f"rho_standard must be a number in (0, 1], got {rho_standard!r}") from None
+    if not 0.0 < rho <= 1.0:
+        raise ValueError(f"rho_standard must be a number in (0, 1], got {rho_standard!r}")
+    return meta, shape, rho
 
 
 def _scene(meta: Mapping[str, Any], shape: tuple[int, ...], lens: Any, mirror: Any, method: str):
