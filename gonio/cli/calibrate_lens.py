@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, output_file, write_json
 
 COMMAND = "calibrate-lens"
 HELP = "calibrate a fisheye lens (Kannala-Brandt) from ChArUco board images"
@@ -13,7 +13,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--squares", type=int, nargs=2, default=(9, 7), metavar=("X", "Y"))
     parser.add_argument("--square-length", type=float, default=0.04, help="metres")
     parser.add_argument("--marker-length", type=float, default=0.02, help="metres")
-    parser.add_argument("--out", required=True, help="lens-calibration JSON to write")
+    parser.add_argument(
+        "--out", required=True, type=output_file, help="lens-calibration JSON to write"
+    )
     add_json_option(parser)
 
 

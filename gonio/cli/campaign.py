@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, check_output_dir, output_dir, write_json
 
 COMMAND = "campaign"
 HELP = "capture, reduce, fit and report a material on a simulated instrument (LBL or Cornell)"
@@ -66,6 +66,7 @@ def add_arguments(parser) -> None:
         "--out",
         default=None,
         metavar="DIR",
+        type=output_dir,
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
@@ -207,7 +208,7 @@ def run(args) -> int:
     if args.compare is not None:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
-    out = args.out or f"campaign_{args.material}_seed{args.seed}"
+    out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
     if not args.quiet:
         print(campaign.summary_table(res.summary))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from gonio.cli._common import add_json_option, format_table, write_json
+from gonio.cli._common import add_json_option, format_table, output_file, write_json
 
 COMMAND = "render"
 HELP = "render a raw LBL gonioreflectometer image (16-bit PNG/TIFF + JSON side-car)"
@@ -60,8 +60,12 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="capture the f-stops that cover the dynamic range (one file per stop: OUT_fN.ext)",
     )
-    parser.add_argument("--out", required=True, help="image path (.png, .tif or .tiff)")
-    parser.add_argument("--plot", metavar="PATH", help="false-colour PNG with the angle grid")
+    parser.add_argument(
+        "--out", required=True, type=output_file, help="image path (.png, .tif or .tiff)"
+    )
+    parser.add_argument(
+        "--plot", metavar="PATH", type=output_file, help="false-colour PNG with the angle grid"
+    )
     add_json_option(parser)
 
 
