@@ -85,6 +85,23 @@ def port_number(text: str) -> int:
     return v
 
 
+def int_in(lower: int, upper: int, why: str = ""):
+    """``argparse`` type: an integer in ``[lower, upper]``; ``why`` explains the bound."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lower <= v <= upper:
+            raise argparse.ArgumentTypeError(
+                f"{v} is outside [{lower}, {upper}]" + (f" ({why})" if why else "")
+            )
+        return v
+
+    return parse
+
+
 def check_output_dir(text: str, option: str) -> str:
     """:func:`output_dir` for a path computed after parsing; ``ValueError`` naming ``option``."""
     try:

@@ -24,13 +24,16 @@ def run(args) -> int:
 
     from gonio.calibration.lens import calibrate_fisheye, make_board, write_lens_calibration
 
+    try:
+        board = make_board(*args.squares, args.square_length, args.marker_length)
+    except ValueError as exc:
+        raise ValueError(f"--squares / --square-length / --marker-length: {exc}") from None
     imgs = []
     for p in args.images:
         a = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
         if a is None:
             raise ValueError(f"cannot read image {p!r}")
         imgs.append(a)
-    board = make_board(args.squares[0], args.squares[1], args.square_length, args.marker_length)
     cal = calibrate_fisheye(imgs, board)
     write_lens_calibration(cal, args.out)
     lens = cal.lens
