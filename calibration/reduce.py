@@ -194,8 +194,8 @@ def load_lens(lens: Any, width: int | None = None, height: int | None = None):
             raise ValueError(f"lens calibration file {str(p)!r} does not exist")
         try:
             lens = json.loads(p.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{p}: not a JSON lens calibration ({exc})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"lens calibration {str(p)!r}: not a JSON lens file ({exc})") from None
     if isinstance(lens, Mapping):
         lens = FisheyeLens.from_dict(dict(lens.get("lens", lens)))
     if not isinstance(lens, FisheyeLens):

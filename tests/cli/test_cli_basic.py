@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 
 from gonio.cli import main
@@ -68,3 +69,24 @@ def test_os_error_is_one_line_naming_the_path(tmp_path, capsys, monkeypatch):
     assert main(["models"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"gonio models: error: '{tmp_path / 'm.json'}': No space left on device"]
+
+
+def test_materials_of_an_unknown_model(capsys):
+    assert main(["materials", "--model", "nosuch"]) == 2
+    assert "unknown model 'nosuch'; registered models are:" in capsys.readouterr().err
+
+
+def test_fit_exit_status_and_notes(tmp_path, capsys):
+    from gonio import brdf
+    from gonio.geometry import to_vector
+    from gonio.samples import BRDFSamples
+
+    rng = np.random.default_rng(1)
+    n = 300
+    ti, to = rng.uniform(0.1, 1.2, n), rng.uniform(0.1, 1.2, n)
+    pi, po = np.zeros(n), rng.uniform(-np.pi, np.pi, n)
+    v = brdf.create("lambert", rho=0.4)(to_vector(ti, pi), to_vector(to, po))
+    BRDFSamples(ti, pi, to, po, v, 0.01 * v).write(tmp_path / "t.csv")
+    assert main(["fit", str(tmp_path / "t.csv"), "--model", "lambert + lambert"]) == 1
+    out = capsys.readouterr().out
+    assert "NOT identifiable" in out and "note: not identifiable" in out
