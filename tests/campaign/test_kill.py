@@ -10,6 +10,7 @@ more points at random.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -67,6 +68,9 @@ def _kill_when(args: list[str], out: Path, when, timeout: float = 120.0) -> bool
             p.wait()
         p.stderr.close()
     _gone, alive = psutil.wait_procs(children, timeout=10)
+    for c in alive:  # (a failing test leaves nothing running either)
+        with contextlib.suppress(psutil.Error):
+            c.kill()
     assert not alive, f"processes left behind: {alive}"
     return True
 
@@ -156,21 +160,26 @@ def test_random_kill_points_sweep(tmp_path, seed):
 
 def test_sigterm_stops_the_campaign_and_every_child(tmp_path):
     """``kill PID`` / ``Popen.terminate()``: handled like Ctrl-C, no worker left running."""
-    p = subprocess.Popen(_cmd(LBL, tmp_path / "t"), stdout=subprocess.DEVNULL,
-                         stderr=subprocess.PIPE)  # fmt: skip
+    log = tmp_path / "stderr.txt"
+    with open(log, "wb") as err:  # a file, not a pipe: a surviving child would hold a pipe open
+        p = subprocess.Popen(_cmd(LBL, tmp_path / "t"), stdout=subprocess.DEVNULL, stderr=err)
     proc = psutil.Process(p.pid)
     t0 = time.monotonic()
     children: list = []
-    while len(children) < 3 and p.poll() is None:  # plot worker + 2 pool workers
-        assert time.monotonic() - t0 < 120
-        children = proc.children(recursive=True)
-        time.sleep(0.005)
-    assert p.poll() is None, "campaign ended before its workers started"
-    p.terminate()
-    rc = p.wait(timeout=60)
-    err = p.stderr.read().decode()
-    p.stderr.close()
-    _gone, alive = psutil.wait_procs(children, timeout=10)
+    try:
+        while len(children) < 3 and p.poll() is None:  # plot worker + 2 pool workers
+            assert time.monotonic() - t0 < 120
+            children = proc.children(recursive=True)
+            time.sleep(0.005)
+        assert p.poll() is None, "campaign ended before its workers started"
+        p.terminate()
+        rc = p.wait(timeout=60)
+        _gone, alive = psutil.wait_procs(children, timeout=10)
+    finally:
+        for c in [proc, *children]:
+            with contextlib.suppress(psutil.Error):
+                c.kill()
     assert not alive, f"processes left behind after SIGTERM: {alive}"
-    assert rc == 130 and "interrupted" in err and "Traceback" not in err
+    text = log.read_text()
+    assert rc == 130 and "interrupted" in text and "Traceback" not in text
     assert not list((tmp_path / "t").rglob("*.tmp"))
