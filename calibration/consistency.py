@@ -39,7 +39,7 @@ import numpy as np
 from gonio.calibration.radiometry import _meta_get
 from numpy.typing import NDArray
 
-__all__ = ["ANGLE_TOLERANCE_RAD", "check_captures", "check_frame"]
+__all__ = ["ANGLE_TOLERANCE_RAD", "check_captures", "check_frame", "sidecar_angle"]
 
 #: Largest accepted difference of the incidence angles of the three captures (rad); a
 #: goniometer's encoders are read to ~1e-5 rad, side-cars store float64 radians.
@@ -133,7 +133,10 @@ def check_frame(image: NDArray, meta: Mapping[str, Any], src: str) -> dict[str, 
     return {"max_dn": top, "dtype": img.dtype.name}
 
 
-def _angle(meta: Mapping[str, Any], key: str, src: str, default: float | None) -> float:
+def sidecar_angle(
+    meta: Mapping[str, Any], key: str, src: str, default: float | None = None
+) -> float:
+    """The side-car angle ``key`` (radians) as a finite float; ``ValueError`` naming ``src``."""
     v = meta.get(key, default)
     if v is None:
         raise ValueError(f"{src}: side-car field {key!r} (radians) is missing")
@@ -165,7 +168,7 @@ def check_captures(captures: Mapping[str, Any]) -> None:
     """
     ref_meta = captures["measured"].meta
     ref_src = _sources(captures["measured"], "measured")[0]
-    theta = _angle(ref_meta, "theta_i", ref_src, None)
+    theta = sidecar_angle(ref_meta, "theta_i", ref_src, None)
     camera: tuple[str, dict[str, Any]] | None = None
     measured = [np.asarray(a) for a in captures["measured"].images]
     for role, cap in captures.items():
@@ -181,7 +184,7 @@ def check_captures(captures: Mapping[str, Any]) -> None:
                     )
             if role == "measured":
                 continue
-            a = _angle(meta, "theta_i", src, None)
+            a = sidecar_angle(meta, "theta_i", src)
             if abs(a - theta) > ANGLE_TOLERANCE_RAD:
                 raise ValueError(
                     f"{src}: side-car field 'theta_i' = {math.degrees(a):.6g} deg differs from "

@@ -44,6 +44,7 @@ from gonio.calibration.angles import (
     reflection_directions,
     to_sample_frame,
 )
+from gonio.calibration.consistency import sidecar_angle
 from gonio.calibration.merge import calibrate_response, merge_debevec, merge_linear
 from gonio.calibration.radiometry import Measurement, Reflectance, _meta_get, eq2
 from gonio.calibration.thinning import thin
@@ -261,19 +262,6 @@ class ReductionResult:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def _angle(meta: Mapping[str, Any], key: str, default: float | None = None) -> float:
-    v = meta.get(key, default)
-    if v is None:
-        raise ValueError(f"image metadata lacks {key!r} (radians)")
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"metadata {key!r} must be a number (radians), got {v!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"metadata {key!r} must be finite, got {v!r}")
-    return v
-
-
 def _check_triple(
     measured: Capture, standard: Capture, background: Capture, rho_standard: float | None
 ) -> tuple[dict[str, Any], tuple[int, ...], float]:
@@ -318,9 +306,9 @@ def _scene(meta: Mapping[str, Any], shape: tuple[int, ...], lens: Any, mirror: A
             raise ValueError("mirror geometry not given and not in the side-car ('mirror')")
         mirror = meta["mirror"]
     wo_dome, gvalid = pixel_geometry(lens_obj, mirror, method)
-    theta_i = _angle(meta, "theta_i")
-    phi_i = _angle(meta, "phi_i", 0.0)
-    rotation = _angle(meta, "sample_rotation", 0.0)
+    theta_i = sidecar_angle(meta, "theta_i", "image metadata")
+    phi_i = sidecar_angle(meta, "phi_i", "image metadata", 0.0)
+    rotation = sidecar_angle(meta, "sample_rotation", "image metadata", 0.0)
     if not 0.0 <= theta_i < math.pi / 2:
         raise ValueError(f"theta_i = {theta_i!r} rad must be in [0, pi/2)")
     return lens_obj, mirror, wo_dome, gvalid, theta_i, phi_i, rotation
