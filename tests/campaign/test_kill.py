@@ -114,6 +114,7 @@ def _lbl(tmp_path: Path, points: list) -> None:
 
 
 def _cornell(tmp_path: Path, points: list) -> None:
+    tmp_path.mkdir(parents=True, exist_ok=True)
     plan = tmp_path / "plan.csv"
     plan.write_text(PLAN)
     args = ["--instrument", "cornell", "--plan", str(plan)]
