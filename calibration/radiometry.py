@@ -160,6 +160,14 @@ class SensorModel:
         )
 
 
+#: Exposure times a camera can take (s): 1 ns electronic shutters to ~12 days; outside it a
+#: side-car value is a unit mistake, and t² in the noise model would overflow float64.
+EXPOSURE_RANGE_S = (1e-9, 1e6)
+
+#: f-numbers a lens can have: N ≥ 0.5 in air (N = 1/(2 NA), NA ≤ 1); 1000 is a pinhole.
+F_NUMBER_RANGE = (0.5, 1000.0)
+
+
 def exposure_scale(meta: Mapping[str, Any]) -> float:
     """Exposure scale ``t / N²`` of a frame: exposure time (s) over f-number squared.
 
@@ -174,6 +182,9 @@ def exposure_scale(meta: Mapping[str, Any]) -> float:
         raise ValueError(f"exposure time must be a number, got {t!r}")
     t = _pos(t, "exposure_s")
     n = _pos(_meta_get(meta, ("f_number", "fnumber"), 1.0), "f_number")
+    for name, v, (lo, hi) in (("exposure_s", t, EXPOSURE_RANGE_S), ("f_number", n, F_NUMBER_RANGE)):
+        if not lo <= v <= hi:
+            raise ValueError(f"{name} = {v!r} is outside the physical range [{lo:g}, {hi:g}]")
     return t / (n * n)
 
 

@@ -44,6 +44,7 @@ from gonio.calibration.angles import (
     reflection_directions,
     to_sample_frame,
 )
+from gonio.calibration.consistency import sidecar_angle
 from gonio.calibration.merge import calibrate_response, merge_debevec, merge_linear
 from gonio.calibration.radiometry import Measurement, Reflectance, _meta_get, eq2
 from gonio.calibration.thinning import thin
@@ -76,10 +77,14 @@ class Capture:
         Raw frames (2-D arrays of DN) and their side-car dicts, one per exposure.
     darks : list of arrays or None, optional
         A dark frame per exposure (``None`` entries allowed).
+    sources : list of str, optional
+        Where each frame came from (its file; :func:`load_capture` fills it in), named by
+        the side-car consistency errors (:mod:`gonio.calibration.consistency`).
     """
 
     frames: list[tuple[NDArray, dict[str, Any]]]
     darks: list[NDArray | None] | None = None
+    sources: list[str] | None = None
 
     def __post_init__(self) -> None:
         if not self.frames:
@@ -92,6 +97,8 @@ class Capture:
         self.frames = fr
         if self.darks is not None and len(self.darks) != len(self.frames):
             raise ValueError(f"got {len(self.frames)} frames but {len(self.darks)} dark frames")
+        if self.sources is not None and len(self.sources) != len(self.frames):
+            raise ValueError(f"got {len(self.frames)} frames but {len(self.sources)} sources")
 
     @classmethod
     def single(cls, image: ArrayLike, meta: Mapping[str, Any], dark: ArrayLike | None = None):
@@ -132,7 +139,7 @@ def load_capture(
     darks = None
     if dark_paths is not None:
         darks = [None if d is None else read_image(d)[0] for d in dark_paths]
-    return Capture(frames, darks)
+    return Capture(frames, darks, [str(p) for p in paths])
 
 
 def is_linear(meta: Mapping[str, Any]) -> bool:
@@ -188,8 +195,8 @@ def load_lens(lens: Any, width: int | None = None, height: int | None = None):
             raise ValueError(f"lens calibration file {str(p)!r} does not exist")
         try:
             lens = json.loads(p.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{p}: not a JSON lens calibration ({exc})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"lens calibration {str(p)!r}: not a JSON lens file ({exc})") from None
     if isinstance(lens, Mapping):
         lens = FisheyeLens.from_dict(dict(lens.get("lens", lens)))
     if not isinstance(lens, FisheyeLens):
@@ -255,24 +262,16 @@ class ReductionResult:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def _angle(meta: Mapping[str, Any], key: str, default: float | None = None) -> float:
-    v = meta.get(key, default)
-    if v is None:
-        raise ValueError(f"image metadata lacks {key!r} (radians)")
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"metadata {key!r} must be a number (radians), got {v!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"metadata {key!r} must be finite, got {v!r}")
-    return v
-
-
 def _check_triple(
     measured: Capture, standard: Capture, background: Capture, rho_standard: float | None
 ) -> tuple[dict[str, Any], tuple[int, ...], float]:
-    """Type and shape checks of the three captures; ρ_standard from the side-cars if needed."""
-    for name, c in (("measured", measured), ("standard", standard), ("background", background)):
+    """Type, shape and side-car consistency checks of the three captures
+    (:func:`~gonio.calibration.consistency.check_captures`); ρ_standard from the side-cars
+    if needed."""
+    from gonio.calibration.consistency import check_captures
+
+    triple = {"measured": measured, "standard": standard, "background": background}
+    for name, c in triple.items():
         if not isinstance(c, Capture):
             raise ValueError(f"{name} must be a Capture, got {type(c).__name__}")
     meta = measured.meta
@@ -289,7 +288,14 @@ def _check_triple(
                 break
     if rho_standard is None:
         raise ValueError("rho_standard not given and not found in the side-cars")
-    return meta, shape, float(rho_standard)
+    check_captures(triple)
+    try:
+        rho = float(rho_standard)
+    except (TypeError, ValueError):
+        raise ValueError(f"rho_standard must be a number in (0, 1], got {rho_standard!r}") from None
+    if not 0.0 < rho <= 1.0:
+        raise ValueError(f"rho_standard must be a number in (0, 1], got {rho_standard!r}")
+    return meta, shape, rho
 
 
 def _scene(meta: Mapping[str, Any], shape: tuple[int, ...], lens: Any, mirror: Any, method: str):
@@ -300,9 +306,9 @@ def _scene(meta: Mapping[str, Any], shape: tuple[int, ...], lens: Any, mirror: A
             raise ValueError("mirror geometry not given and not in the side-car ('mirror')")
         mirror = meta["mirror"]
     wo_dome, gvalid = pixel_geometry(lens_obj, mirror, method)
-    theta_i = _angle(meta, "theta_i")
-    phi_i = _angle(meta, "phi_i", 0.0)
-    rotation = _angle(meta, "sample_rotation", 0.0)
+    theta_i = sidecar_angle(meta, "theta_i", "image metadata")
+    phi_i = sidecar_angle(meta, "phi_i", "image metadata", 0.0)
+    rotation = sidecar_angle(meta, "sample_rotation", "image metadata", 0.0)
     if not 0.0 <= theta_i < math.pi / 2:
         raise ValueError(f"theta_i = {theta_i!r} rad must be in [0, pi/2)")
     return lens_obj, mirror, wo_dome, gvalid, theta_i, phi_i, rotation

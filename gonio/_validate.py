@@ -36,6 +36,39 @@ def as_directions(w: ArrayLike, name: str) -> NDArray[np.float64]:
     return a
 
 
+#: Largest accepted ``|‖w‖ − 1|`` of a direction given to a BRDF model. Directions built in
+#: float64 from angles are unit to ~1e-16, float32 ones to ~1e-7; a vector farther off is
+#: not a direction (a BRDF's value depends on the cosines, so 10 wi is not wi).
+UNIT_TOLERANCE = 1e-6
+
+
+def as_unit_directions(w: ArrayLike, name: str, tol: float = UNIT_TOLERANCE) -> NDArray[np.float64]:
+    """:func:`as_directions`, and every vector of unit length within ``tol``.
+
+    The one direction check of every BRDF model's public methods (evaluation, albedo,
+    sampling, pdf, mirror part). Directions are not normalised silently: a non-unit vector
+    is a caller's mistake (a ``wi`` scaled by 10 gave Ward 0.032 instead of 3.82 sr⁻¹).
+
+    Raises
+    ------
+    ValueError
+        As :func:`as_directions`, or naming how many vectors are not of unit length and the
+        first one with its length.
+    """
+    a = as_directions(w, name)
+    length = np.sqrt(np.einsum("...i,...i->...", a, a))
+    bad = np.abs(length - 1.0) > tol
+    if bad.any():
+        idx = tuple(int(i[0]) for i in np.nonzero(np.atleast_1d(bad)))[: bad.ndim]
+        first = f"{name}[{', '.join(map(str, idx))}]" if idx else name
+        raise ValueError(
+            f"{name} must hold unit vectors (| |w| - 1 | <= {tol:g}); "
+            f"{int(np.count_nonzero(bad))} of {bad.size} are not, e.g. {first} = "
+            f"{a[idx].tolist()} of length {float(length[idx]):.6g}"
+        )
+    return a
+
+
 def as_finite_array(x: ArrayLike, name: str) -> NDArray[np.float64]:
     """Return ``x`` as float64, raising ``ValueError`` if any entry is not finite."""
     try:

@@ -22,6 +22,14 @@ __all__ = ["COLUMNS", "BRDFSamples"]
 
 COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o", "value", "sigma")
 
+#: Largest accepted |phi| (radians): one turn either way, with rounding room. Azimuths in
+#: degrees (up to 360) would otherwise wrap silently and fit to garbage.
+_PHI_LIMIT = 2.0 * np.pi * (1.0 + 1e-9)
+
+
+def _degrees_hint(a: NDArray[np.float64]) -> str:
+    return " (degrees? angles are radians)" if a.size and float(np.abs(a).max()) > 6.3 else ""
+
 
 @dataclass
 class BRDFSamples:
@@ -58,13 +66,30 @@ class BRDFSamples:
                     raise ValueError("column sigma mixes known and unknown (nan) errors")
                 if (arr < 0).any():
                     raise ValueError("column sigma has negative standard errors")
+                if np.isinf(arr).any():
+                    k = int(np.flatnonzero(np.isinf(arr))[0])
+                    raise ValueError(
+                        f"column sigma has {int(np.isinf(arr).sum())} infinite value(s) (first "
+                        f"at row {k}): a sample without weight is a row to drop, an unknown "
+                        "error is nan for the whole column"
+                    )
             elif not np.isfinite(arr).all():
                 raise ValueError(f"column {name} contains non-finite values")
             setattr(self, name, arr)
         for name in ("theta_i", "theta_o"):
             a = getattr(self, name)
             if ((a < 0) | (a > np.pi / 2)).any():
-                raise ValueError(f"column {name} must lie in [0, pi/2] radians")
+                raise ValueError(
+                    f"column {name} must lie in [0, pi/2] radians, got values in "
+                    f"[{a.min():.6g}, {a.max():.6g}]{_degrees_hint(a)}"
+                )
+        for name in ("phi_i", "phi_o"):
+            a = getattr(self, name)
+            if (np.abs(a) > _PHI_LIMIT).any():
+                raise ValueError(
+                    f"column {name} must lie in [-2 pi, 2 pi] radians, got values in "
+                    f"[{a.min():.6g}, {a.max():.6g}]{_degrees_hint(a)}"
+                )
 
     # ------------------------------------------------------------------ constructors
     @classmethod

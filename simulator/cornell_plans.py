@@ -225,7 +225,7 @@ def read_plan_csv(path: str | os.PathLike, kin: Kinematics | None = None) -> Pla
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise ValueError(f"plan file {path!r} does not exist")
-    with open(path, encoding="utf-8") as f:
+    with open(path, encoding="utf-8-sig") as f:  # -sig: a byte-order mark is not the header
         rows = [r for r in csv.reader(line for line in f if not line.lstrip().startswith("#"))]
     rows = [r for r in rows if any(c.strip() for c in r)]
     if not rows:

@@ -33,6 +33,14 @@ __all__ = ["ERROR_MESSAGES", "ESP300Firmware", "FakeESP300Server"]
 
 VERSION = "ESP300 Version 3.08 09/09/02"
 
+#: Listen backlog of the TCP port: connections beyond the one served are accepted and
+#: refused with :data:`BUSY_REPLY`, never left unanswered in a full backlog.
+_BACKLOG = 64
+
+#: The line a TCP client gets (then the socket closes) while another client is served: the
+#: controller has one host port; a second host is refused explicitly, not silently dropped.
+BUSY_REPLY = b"ESP300 fake: busy, another client is connected\r\n"
+
 #: General errors (code) and axis errors (100·axis + code) of the ESP300 manual.
 ERROR_MESSAGES = {
     0: "NO ERROR DETECTED",
@@ -166,6 +174,19 @@ class ESP300Firmware:
                 or any(s.is_moving(t) for s in self.axes.values())
                 or bool(self._homing)
             )
+
+    def reset_link(self) -> None:
+        """Forget the host link's state: a partial line, queued commands and a ``WS`` wait.
+
+        Called when a TCP client connects or goes away, so one client's unfinished bytes are
+        never glued to the next client's first command and a ``WS`` wait does not outlive
+        the client that sent it. The axes (motion, positions) and the error queue are the
+        controller's and are kept.
+        """
+        with self.lock:
+            self._inbuf.clear()
+            self._queue.clear()
+            self._hold = None
 
     # -- internals --------------------------------------------------------------------------
     def _error(self, code: int) -> None:
@@ -393,7 +414,9 @@ class FakeESP300Server:
         Also listen on 127.0.0.1 (an int picks the port; ``True`` any free port).
     link : str, optional
         Keep a symlink to the current pty here; after a simulated unplug the fake comes back
-        on a new pty and the link is updated, so clients can reconnect by the link path.
+        on a new pty and the link is updated, so clients can reconnect by the link path. An
+        existing path that is not a symlink is refused (``ValueError``), never replaced, and
+        on :meth:`stop` the link is removed only while it still points at this server's pty.
     axes : sequence of str, optional
         Stage names for axes 1..3.
     faults : Faults, optional
@@ -427,17 +450,29 @@ class FakeESP300Server:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.disconnects = 0
+        self.refused = 0  # TCP connections refused while another client was served
+        self._ptys: set[str] = set()
 
     # -- lifecycle --------------------------------------------------------------------------
     def start(self) -> FakeESP300Server:
-        self._open_pty()
+        if self.link and os.path.lexists(self.link) and not os.path.islink(self.link):
+            raise ValueError(f"link={self.link!r} exists and is not a symlink; not replacing it")
         if self._want_tcp is not False:
+            port = 0 if self._want_tcp is True else int(self._want_tcp)
+            if not 0 <= port <= 65535:
+                raise ValueError(f"tcp={self._want_tcp!r}: a port must be in [0, 65535]")
             self._lsock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             self._lsock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            port = 0 if self._want_tcp is True else int(self._want_tcp)
-            self._lsock.bind(("127.0.0.1", port))
-            self._lsock.listen(1)
+            try:
+                self._lsock.bind(("127.0.0.1", port))
+            except OSError as exc:
+                self._lsock.close()
+                self._lsock = None
+                msg = f"cannot listen on 127.0.0.1:{port}: {exc.strerror}"
+                raise OSError(exc.errno, msg) from None
+            self._lsock.listen(_BACKLOG)
             self.tcp_port = self._lsock.getsockname()[1]
+        self._open_pty()
         self._thread = threading.Thread(target=self._run, name="fake-esp300", daemon=True)
         self._thread.start()
         return self
@@ -451,9 +486,16 @@ class FakeESP300Server:
             if s is not None:
                 with contextlib.suppress(OSError):
                     s.close()
-        if self.link:
+        if self.link and self._owns_link():
             with contextlib.suppress(OSError):
                 os.unlink(self.link)
+
+    def _owns_link(self) -> bool:
+        """Whether ``link`` is still the symlink this server made (to one of its ptys)."""
+        try:
+            return os.path.islink(self.link) and os.readlink(self.link) in self._ptys
+        except OSError:
+            return False
 
     def __enter__(self) -> FakeESP300Server:
         return self.start()
@@ -473,6 +515,7 @@ class FakeESP300Server:
         tty.setraw(self._slave)  # no echo or CR/LF mangling before the client configures it
         os.set_blocking(self._master, False)  # nobody reading: replies are lost, not blocking
         self.port = os.ttyname(self._slave)
+        self._ptys.add(self.port)
         if self.link:
             tmp = f"{self.link}.tmp{os.getpid()}"
             with contextlib.suppress(FileNotFoundError):
@@ -491,12 +534,47 @@ class FakeESP300Server:
         """Simulate pulling the cable: drop the pty / TCP client; back after ``reconnect_after``."""
         self.disconnects += 1
         self._close_pty()
+        self._drop_client()
+        self._pending.clear()
+        self._down_until = time.monotonic() + self.faults.reconnect_after
+
+    # -- TCP clients ------------------------------------------------------------------------
+    def _accept(self) -> None:
+        """Serve a new connection, or refuse it explicitly while another client is served."""
+        try:
+            conn, _ = self._lsock.accept()
+        except OSError:
+            return
+        if time.monotonic() < self._down_until:
+            conn.close()
+            return
+        if self._client is not None and self._client_alive():
+            self.refused += 1
+            with contextlib.suppress(OSError):
+                conn.sendall(BUSY_REPLY)
+            conn.close()
+            return
+        self._drop_client()
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._client = conn
+
+    def _client_alive(self) -> bool:
+        """Whether the served client's socket is still open (peek, without consuming)."""
+        try:
+            return bool(self._client.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+        except BlockingIOError:
+            return True
+        except OSError:
+            return False
+
+    def _drop_client(self) -> None:
+        """Close the TCP client and forget its link state and undelivered replies."""
         if self._client is not None:
             with contextlib.suppress(OSError):
                 self._client.close()
             self._client = None
-        self._pending.clear()
-        self._down_until = time.monotonic() + self.faults.reconnect_after
+        self.tcp_firmware.reset_link()
+        self._pending = [p for p in self._pending if p[1] != "tcp"]
 
     # -- loop -------------------------------------------------------------------------------
     def _send(self, channel: str, data: bytes) -> None:
@@ -524,10 +602,10 @@ class FakeESP300Server:
             fds: list = []
             if self._master >= 0:
                 fds.append(self._master)
+            if self._client is not None:  # before the listener: a client's EOF is seen first
+                fds.append(self._client)
             if self._lsock is not None:
                 fds.append(self._lsock)
-            if self._client is not None:
-                fds.append(self._client)
             busy = self.firmware.busy() or self.tcp_firmware.busy() or bool(self._pending)
             try:
                 readable, _, _ = select.select(fds, [], [], 0.002 if busy else 0.02)
@@ -535,23 +613,14 @@ class FakeESP300Server:
                 readable = []
             for fd in readable:
                 if fd is self._lsock:
-                    conn, _ = self._lsock.accept()
-                    if time.monotonic() < self._down_until:
-                        conn.close()
-                        continue
-                    if self._client is not None:
-                        with contextlib.suppress(OSError):
-                            self._client.close()
-                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    self._client = conn
+                    self._accept()
                 elif fd is self._client:
                     try:
                         data = self._client.recv(4096)
                     except OSError:
                         data = b""
                     if not data:
-                        self._client.close()
-                        self._client = None
+                        self._drop_client()
                     else:
                         self.tcp_firmware.receive(data)
                 elif fd == self._master:

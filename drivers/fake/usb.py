@@ -264,18 +264,40 @@ def _desc_dict(d: Any) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(d).items()}
 
 
+#: Longest transfer a client may ask for (bytes): Linux usbfs's default memory limit for
+#: all of a process's in-flight transfers (``usbfs_memory_mb`` = 16), so no real host sends
+#: more; a longer read or write is refused before any buffer is allocated.
+MAX_TRANSFER = 16 * 2**20
+
+#: Longest request line (a base64 payload of :data:`MAX_TRANSFER` bytes plus the envelope).
+MAX_REQUEST_LINE = 4 * MAX_TRANSFER // 3 + 4096
+
+#: Most clients (connections) served at once; one more is answered with an error and closed.
+MAX_CLIENTS = 16
+
+
+def _transfer_length(v: Any, what: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= MAX_TRANSFER:
+        raise ValueError(f"{what} length {v!r}: expected an integer in [0, {MAX_TRANSFER}]")
+    return v
+
+
 class RemoteServer:
     """Serve the backend ``name`` on 127.0.0.1 so other processes can :func:`connect` to it.
 
     One JSON request per line (``{"op": ..., "args": [...]}``, bytes in base64); one JSON
     reply per line (``{"ok": result}`` or ``{"error": {...}}``). ``address`` is
-    ``"127.0.0.1:<port>"``.
+    ``"127.0.0.1:<port>"``. Resources are bounded: at most :data:`MAX_CLIENTS` connections
+    (threads) at once, requests of at most :data:`MAX_REQUEST_LINE` bytes and transfers of
+    at most :data:`MAX_TRANSFER` bytes; beyond them the client gets an error reply.
     """
 
     def __init__(self, name: str, port: int = 0) -> None:
         import socket
         import threading
 
+        self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
+        self.refused = 0
         self.backend = getattr(usb.backend, name).get_backend()
         self._refs: dict[str, Any] = {}
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -294,7 +316,31 @@ class RemoteServer:
                 conn, _ = self._sock.accept()
             except OSError:
                 return
-            threading.Thread(target=self._client, args=(conn,), daemon=True).start()
+            if not self._slots.acquire(blocking=False):
+                self.refused += 1
+                self._refuse(conn, f"busy: {MAX_CLIENTS} clients are connected")
+                continue
+            threading.Thread(target=self._serve_client, args=(conn,), daemon=True).start()
+
+    @staticmethod
+    def _refuse(conn: Any, msg: str) -> None:
+        import json
+
+        try:
+            conn.sendall(json.dumps({"error": {"type": "other", "msg": msg}}).encode() + b"\n")
+        except OSError:
+            pass
+        conn.close()
+
+    def _serve_client(self, conn: Any) -> None:
+        try:
+            self._client(conn)
+        finally:
+            self._slots.release()
+            try:
+                conn.close()
+            except OSError:
+                pass
 
     def _ref(self, key: str) -> Any:
         try:
@@ -310,7 +356,16 @@ class RemoteServer:
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         f = conn.makefile("rwb")
         be = self.backend
-        for line in f:
+        while True:
+            try:
+                line = f.readline(MAX_REQUEST_LINE + 1)
+            except OSError:
+                return
+            if not line:
+                return
+            if len(line) > MAX_REQUEST_LINE:
+                self._refuse(conn, f"request longer than {MAX_REQUEST_LINE} bytes")
+                return
             try:
                 req = json.loads(line)
                 op, a = req["op"], req.get("args", [])
@@ -334,7 +389,7 @@ class RemoteServer:
                 elif op in ("bulk_read", "intr_read"):
                     import array
 
-                    buff = array.array("B", bytes(a[3]))
+                    buff = array.array("B", bytes(_transfer_length(a[3], op)))
                     n = getattr(be, op)(self._ref(a[0]), a[1], a[2], buff, a[4])
                     res = base64.b64encode(buff[:n].tobytes()).decode()
                 elif op == "ctrl_transfer":
@@ -342,7 +397,7 @@ class RemoteServer:
 
                     h, bm, req_, val, idx, payload, tmo = a
                     if bm & 0x80:
-                        buff = array.array("B", bytes(payload))
+                        buff = array.array("B", bytes(_transfer_length(payload, op)))
                         n = be.ctrl_transfer(self._ref(h), bm, req_, val, idx, buff, tmo)
                         res = base64.b64encode(buff[:n].tobytes()).decode()
                     else:

@@ -8,6 +8,9 @@ that :func:`gonio.brdf.create`, :func:`gonio.brdf.names` and :func:`gonio.brdf.s
 Conventions: ``wi`` points towards the light, ``wo`` towards the viewer, both away from the
 surface in the local frame (z = normal). Values are in sr⁻¹, shape ``(...)`` for a grey model
 and ``(..., n_bands)`` for a spectral one. Directions below the horizon give 0, never NaN.
+Directions must be unit vectors (within :data:`gonio._validate.UNIT_TOLERANCE`); every public
+method checks them with :func:`gonio._validate.as_unit_directions` and raises ``ValueError``
+otherwise (``evaluate_unchecked`` skips the check for trusted arrays).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gonio._validate import as_directions
+from gonio._validate import as_unit_directions
 
 __all__ = [
     "BRDF",
@@ -233,8 +236,8 @@ class BRDF:
 
     def __call__(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """BRDF value f_r(wi, wo) in sr⁻¹; 0 where either direction is below the horizon."""
-        wi = as_directions(wi, "wi")
-        wo = as_directions(wo, "wo")
+        wi = as_unit_directions(wi, "wi")
+        wo = as_unit_directions(wo, "wo")
         try:
             np.broadcast_shapes(wi.shape, wo.shape)
         except ValueError:
@@ -257,7 +260,7 @@ class BRDF:
         (or 1e-12 absolute). Shape ``(...)`` or ``(..., n_bands)``; 0 for directions below
         the horizon.
         """
-        wi = as_directions(wi, "wi")
+        wi = as_unit_directions(wi, "wi")
         rtol = self.ALBEDO_RTOL if rtol is None else float(rtol)
         if not (0.0 < rtol < 1.0):
             raise ValueError(f"rtol must be in (0, 1), got {rtol!r}")
@@ -313,14 +316,14 @@ class BRDF:
         """
         if type(self)._sample is BRDF._sample:
             raise TypeError(f"model {self.name!r} has no sampling method (its paper gives none)")
-        wo = as_directions(wo, "wo")
+        wo = as_unit_directions(wo, "wo")
         return self._sample(wo, np.random.default_rng(rng))
 
     def pdf(self, wo: ArrayLike, wi: ArrayLike) -> NDArray[np.float64]:
         """Solid-angle density with which :meth:`sample` returns ``wi`` given ``wo``."""
         if type(self)._pdf is BRDF._pdf:
             raise TypeError(f"model {self.name!r} has no sampling method (its paper gives none)")
-        return self._pdf(as_directions(wo, "wo"), as_directions(wi, "wi"))
+        return self._pdf(as_unit_directions(wo, "wo"), as_unit_directions(wi, "wi"))
 
     def _sample(self, wo: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
         raise TypeError(f"model {self.name!r} has no sampling method")
@@ -335,7 +338,7 @@ class BRDF:
         incident flux it carries (shape ``(...)`` or ``(..., n_bands)``). Instruments render it
         through the source's solid angle. Models without a mirror part return reflectance 0.
         """
-        wi = as_directions(wi, "wi")
+        wi = as_unit_directions(wi, "wi")
         d = wi * np.array([-1.0, -1.0, 1.0])
         shape = wi.shape[:-1] + ((self.n_bands,) if self.n_bands else ())
         return d, np.zeros(shape)

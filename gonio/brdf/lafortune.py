@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gonio._validate import as_directions
+from gonio._validate import as_unit_directions
 from gonio.brdf._lobes import (
     cosine_lobe_albedo,
     cosine_lobe_pdf,
@@ -200,7 +200,7 @@ class Lafortune(BRDF):
 
         Reflectance 0 when ``r_m = 0`` or ``wi`` is at or below the horizon.
         """
-        wi = as_directions(wi, "wi")
+        wi = as_unit_directions(wi, "wi")
         d = wi * np.array([-1.0, -1.0, 1.0])
         r_m = self._params["r_m"]
         if r_m == 0.0 or len(self._N) == 0:

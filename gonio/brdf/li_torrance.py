@@ -58,7 +58,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gonio._validate import as_directions
+from gonio._validate import as_unit_directions
 from gonio.brdf._jit import lazy_kernel
 from gonio.brdf.base import BRDF, Param, hemisphere_integral, register
 
@@ -614,7 +614,7 @@ class LiTorrance(BRDF):
         ----------
         Li and Torrance 2005, eq. 2-4, 16.
         """
-        wi = as_directions(wi, "wi")
+        wi = as_unit_directions(wi, "wi")
         d = wi * np.array([-1.0, -1.0, 1.0])
         bands = (self._nb,) if self._nb else ()
         flat = wi.reshape(-1, 3)

@@ -162,9 +162,9 @@ class OrenNayar(BRDF):
 
     def components(self, wi, wo) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(direct, interreflection)``: eq. 27 and eq. 28 as BRDFs (sr⁻¹); they sum to f_r."""
-        from gonio._validate import as_directions
+        from gonio._validate import as_unit_directions
 
-        return self._components(as_directions(wi, "wi"), as_directions(wo, "wo"))
+        return self._components(as_unit_directions(wi, "wi"), as_unit_directions(wo, "wo"))
 
     def _components(self, wi: NDArray, wo: NDArray) -> tuple[NDArray, NDArray]:
         if self._c2 == 0.0 and self._k2 == 0.0:
@@ -483,9 +483,9 @@ class OrenNayarNumeric(BRDF):
 
     def components(self, wi, wo) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(direct, interreflection)`` BRDF terms (eq. 24 and eq. 49 integrated by eq. 25)."""
-        from gonio._validate import as_directions
+        from gonio._validate import as_unit_directions
 
-        return self._components(as_directions(wi, "wi"), as_directions(wo, "wo"))
+        return self._components(as_unit_directions(wi, "wi"), as_unit_directions(wo, "wo"))
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
         d, i = self._components(wi, wo)

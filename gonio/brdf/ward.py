@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gonio._validate import as_directions
+from gonio._validate import UNIT_TOLERANCE, as_unit_directions
 from gonio.brdf._jit import njit_or_none
 from gonio.brdf._lobes import half_vector_albedo, half_vector_sum, refine_nodes
 from gonio.brdf.base import BRDF, Param, register
@@ -59,8 +59,12 @@ _WARD_ISSUES = ("albedo diverges at grazing incidence (Neumann et al. 1999, §7.
 #   post: out = ρ_d/π + s·e, or 0 where s < 0.
 # The loops are branch-free (selects; the ``mode`` tests are loop-invariant) so LLVM can
 # vectorise them. ``pre`` returns the number of rows holding a non-finite entry (x − x ≠ 0 for
-# NaN and ±inf).
+# NaN and ±inf) or a vector that is not of unit length (the rule of
+# :func:`gonio._validate.as_unit_directions`, which then raises the error).
 
+
+_LEN2_LO = (1.0 - UNIT_TOLERANCE) ** 2  # squared-length bounds of a unit vector
+_LEN2_HI = (1.0 + UNIT_TOLERANCE) ** 2
 
 #: ``mode`` argument of :func:`_k_pre` for each model (its ``_KERNEL`` name)
 _PRE_MODES: dict[str, int] = {"ward": 0, "ward_approx": 1, "ward_neumann": 2}
@@ -79,6 +83,9 @@ def _k_pre(wi, wo, e_out, s_out, ks, ax2, ay2, mode):  # pragma: no cover - numb
         oy = wo[k, 1]
         co = wo[k, 2]
         bad += ((ix - ix) + (iy - iy) + (ci - ci) + (ox - ox) + (oy - oy) + (co - co)) != 0.0
+        ni = ix * ix + iy * iy + ci * ci
+        no = ox * ox + oy * oy + co * co
+        bad += (ni < _LEN2_LO) | (ni > _LEN2_HI) | (no < _LEN2_LO) | (no > _LEN2_HI)
         up = (ci > 0.0) & (co > 0.0)
         hx = ix + ox
         hy = iy + oy
@@ -283,8 +290,8 @@ class Ward(BRDF):
             return super().__call__(wi, wo)
         out, bad = res
         if bad:
-            as_directions(wi, "wi")
-            as_directions(wo, "wo")
+            as_unit_directions(wi, "wi")
+            as_unit_directions(wo, "wo")
         return out
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:

@@ -50,11 +50,13 @@ import dataclasses
 import math
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from gonio.campaign import folder as results
 from gonio.campaign.executor import CampaignExecutor
 from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
@@ -635,14 +637,38 @@ def run_cornell_campaign(
     on_measurement : callable(j, n), optional
         Called after each geometry through drivers (progress, fault injection in tests).
     """
-    # 1. prepare
-    with CampaignExecutor(1) as ex, ex.blas():  # BLAS on one thread, stage timings
-        with ex.stage("plan"):
-            setup = _prepare(
-                material, plan, noise=noise, seed=seed, out=out, reference=reference,
-                config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
-                plan_kw=plan_kw, through_drivers=through_drivers,
+    with results.locked(Path(out) if out is not None else None):
+        # 1. prepare (under the folder's lock)
+        t0 = time.perf_counter()
+        setup = _prepare(
+            material, plan, noise=noise, seed=seed, out=out, reference=reference,
+            config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
+            plan_kw=plan_kw, through_drivers=through_drivers,
+        )  # fmt: skip
+        t_plan = time.perf_counter() - t0
+        try:
+            return _stages(
+                setup, t_plan, through_drivers=through_drivers, resume=resume,
+                time_scale=time_scale, faults=faults, checkpoint_every=checkpoint_every,
+                prime=prime, on_measurement=on_measurement, device_timeout=device_timeout, fit=fit,
+                fit_mode=fit_mode, residual=residual, cone_corrections=cone_corrections,
+                fit_linear=fit_linear, quiet=quiet,
             )  # fmt: skip
+        except BaseException:
+            if setup.out is not None:  # no derived output of a failed run
+                results.discard_outputs(setup.out)
+            raise
+
+
+def _stages(
+    setup: _Setup, t_plan: float, *, through_drivers: bool, resume: bool, time_scale: float,
+    faults: Any, checkpoint_every: int, prime: Any, on_measurement: Any, device_timeout: Any,
+    fit: bool, fit_mode: str, residual: str, cone_corrections: Any, fit_linear: Any, quiet: bool,
+) -> dict[str, Any]:  # fmt: skip
+    """Stages 2-4 of :func:`run_cornell_campaign` (measure, fit, report)."""
+    material = setup.material
+    with CampaignExecutor(1) as ex, ex.blas():  # BLAS on one thread, stage timings
+        ex.timings["plan"] = t_plan
         if not quiet:
             how = "through the drivers on the fake devices" if through_drivers else "in-process"
             print(f"cornell: measuring {len(setup.plan)} geometries {how} ...", file=sys.stderr,
@@ -746,6 +772,7 @@ def _prepare(
     }
     if outp is not None:
         outp.mkdir(parents=True, exist_ok=True)
+        results.discard_outputs(outp)  # an earlier run's outputs and unfinished writes
         _write_json(outp / "plan.json", settings)
     return _Setup(material, p, cfg, bool(noise), int(seed), reference, outp, settings)
 

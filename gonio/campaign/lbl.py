@@ -108,9 +108,30 @@ def run(
     -------
     CampaignResult
     """
+    with results.locked(Path(out) if out is not None else None):
+        return _run(plan, out, resume, quiet, stream, instrument, truth, workers)
+
+
+def _run(
+    plan: Plan | None, out: Any, resume: bool, quiet: bool, stream: Any, instrument: Any,
+    truth: Any, workers: int | None,
+) -> CampaignResult:  # fmt: skip
+    """:func:`run` under the folder's lock: the four stages."""
     # 1. prepare
     t_start = time.perf_counter()
     setup = _prepare(plan, out, resume, truth, instrument, workers)
+    try:
+        return _stages(setup, t_start, resume, quiet, stream)
+    except BaseException:
+        if setup.out is not None:  # no derived output of a failed run (raw groups stay)
+            results.discard_outputs(setup.out)
+        raise
+
+
+def _stages(
+    setup: _Setup, t_start: float, resume: bool, quiet: bool, stream: Any
+) -> CampaignResult:
+    """Stages 2-4 of :func:`run` (capture and reduce, fit, report) on a prepared setup."""
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         # 2. capture and reduce
@@ -333,7 +354,8 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
             pr = math.radians(rot)
             shots = {"measured": lambda pr=pr, s=seed: inst.shoot(truth_model, ti, pr, s)}
         folder = raw / key if raw is not None else None
-        frames, loaded, tc, tio = _take_group(folder, shots, resume, seed)
+        made_by = results.group_record(plan, key, seed)
+        frames, loaded, tc, tio = _take_group(folder, shots, resume, made_by)
         captured[key] = frames
         res["n_loaded"] += loaded
         res["t_capture"] += tc
@@ -361,20 +383,21 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
 
 
 def _take_group(
-    folder: Path | None, shots: Mapping[str, Callable[[], Frames]], resume: bool, seed: int
-) -> tuple[dict[str, Frames], bool, float, float]:
+    folder: Path | None, shots: Mapping[str, Callable[[], Frames]], resume: bool,
+    made_by: dict[str, Any],
+) -> tuple[dict[str, Frames], bool, float, float]:  # fmt: skip
     """Capture (or, when resuming, load) one group; returns frames, loaded?, t_cap, t_load.
     A captured group is written behind (on this process's writer thread)."""
     if resume and folder is not None:
         t = time.perf_counter()
-        got = results.load_group(folder)
+        got = results.load_group(folder, made_by)
         if got is not None:
             return got, True, 0.0, time.perf_counter() - t
     t = time.perf_counter()
     frames = {kind: f() for kind, f in shots.items()}
     t_cap = time.perf_counter() - t
     if folder is not None:
-        write_behind(results.save_group, folder, frames, seed)
+        write_behind(results.save_group, folder, frames, made_by)
     return frames, False, t_cap, 0.0
 
 

@@ -62,7 +62,7 @@ def _run_child(fn: Callable[..., None], args: tuple, out: Any) -> None:
         os._exit(code)  # no exit handlers, no flush of buffers inherited from the parent
 
 
-def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> None:
+def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent: int) -> None:
     """The worker's loop: warm up, then fork one child per job until ``None`` or EOF.
 
     A message ``(fn, args, each)`` starts one child per entry ``v`` of ``each`` running
@@ -75,9 +75,14 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> Non
     import signal
     from multiprocessing.connection import Pipe, wait
 
+    from gonio.campaign.executor import die_with_parent
+
     # the parent owns this process's lifetime (close(), or EOF when it dies): a Ctrl-C on
     # the terminal reaches the whole process group and would print a traceback from here
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the campaign's SIGTERM handler
+    die_with_parent(parent)
+    me = os.getpid()
     os.environ["GONIO_NO_NUMBA"] = "1"
     if warm is not None:
         try:
@@ -102,6 +107,7 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple) -> Non
                     rd, wr = Pipe(duplex=False)
                     pid = os.fork()
                     if pid == 0:  # pragma: no cover - runs in the child
+                        die_with_parent(me)
                         for inherited in (rd, conn, *children):  # (EOF when the worker dies)
                             inherited.close()
                         _run_child(fn, call, wr)
@@ -143,7 +149,10 @@ class PlotWorker:
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
-            target=_serve, args=(child, warm, warm_args), name="gonio-plots", daemon=True
+            target=_serve,
+            args=(child, warm, warm_args, os.getpid()),
+            name="gonio-plots",
+            daemon=True,
         )
         self._proc.start()
         child.close()

@@ -28,8 +28,10 @@ by an earlier run are read from their folders and never submitted. The gathered 
 every executor produces the same bytes; wall times go to ``timings.csv``.
 
 Task functions are looked up by name in a registry (:func:`register_task`; built in:
-``"fit_preset"``, and ``"campaign"`` which runs :mod:`gonio.campaign` when it is installed) or
-given as ``"package.module:function"``.
+``"fit_preset"``, and ``"campaign"`` which runs :mod:`gonio.campaign` when it is installed). A
+spec file names a registered task only: reading a spec, even for ``--dry-run``, imports no
+module the spec names; a task of your own is registered from Python first (its ``run`` may be
+``"package.module:function"``, imported when the task first runs).
 """
 
 from __future__ import annotations
@@ -137,18 +139,19 @@ def _import_ref(ref: str, what: str) -> Callable:
 
 
 def _entry(name: str) -> _TaskEntry:
+    """The registered task ``name``. A spec file cannot name ``"module:function"``: reading a
+    spec (even with ``--dry-run``) must not import arbitrary modules; Python code registers
+    its own task first (:func:`register_task`, whose ``run`` may be ``"module:function"``)."""
     if name in _TASKS:
         return _TASKS[name]
-    if ":" in name:
-        return _TaskEntry(name)
     raise ValueError(
         f"unknown task {name!r}; registered tasks are: {', '.join(task_names())} "
-        "(or give 'package.module:function')"
+        "(a task of your own: gonio.campaign.sweep.register_task, then run_sweep)"
     )
 
 
 def get_task(name: str) -> TaskFn:
-    """The task function registered as ``name`` (or imported from ``"module:function"``)."""
+    """The task function registered as ``name`` (its ``"module:function"`` imported)."""
     run = _entry(name).run
     return _import_ref(run, f"task {name!r}") if isinstance(run, str) else run
 
@@ -214,6 +217,13 @@ def _check_value(v: Any, where: str) -> Any:
     raise ValueError(f"{where} must be a number, string, boolean, list or table, got {v!r}")
 
 
+#: A sweep's ``name``: one path component (the default results folder is ``sweep_<name>``).
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+#: Most grid points a spec may expand to; the grid is counted before it is built.
+MAX_TASKS = 100_000
+
+
 def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
     """Validate a decoded spec (a dict as read from JSON or TOML) into a :class:`SweepSpec`.
 
@@ -233,7 +243,7 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
     if not isinstance(task, str):
         raise ValueError(f"{where}: 'task' must be a string, got {task!r}")
     try:
-        get_task(task)  # registered, or importable "module:function"
+        get_task(task)  # registered only
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
 
@@ -250,8 +260,10 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
 
     seeds = data["seeds"]
     if isinstance(seeds, int) and not isinstance(seeds, bool):
-        if seeds < 1:
-            raise ValueError(f"{where}: 'seeds' as a count must be >= 1, got {seeds}")
+        if not 1 <= seeds <= MAX_TASKS:
+            raise ValueError(
+                f"{where}: 'seeds' as a count must be in [1, {MAX_TASKS}], got {seeds}"
+            )
         seeds = list(range(seeds))
     if not isinstance(seeds, list) or not seeds:
         raise ValueError(
@@ -285,19 +297,31 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
     if not isinstance(fixed, dict):
         raise ValueError(f"{where}: 'fixed' must be a table, got {fixed!r}")
     fixed = {k: _check_value(v, f"{where}: fixed.{k}") for k, v in fixed.items()}
+    n_tasks = len(mats) * len(seeds) * math.prod(len(v) for v in settings.values())
+    if n_tasks > MAX_TASKS:
+        raise ValueError(
+            f"{where}: the grid has {n_tasks} points (materials x settings x seeds), more "
+            f"than the {MAX_TASKS} a sweep runs"
+        )
     clash = sorted(set(fixed) & set(settings))
     if clash:
         raise ValueError(f"{where}: key(s) {clash} appear in both [settings] and [fixed]")
     for key in ("name", "description", "plot"):
         if key in data and not isinstance(data[key], str):
             raise ValueError(f"{where}: {key!r} must be a string, got {data[key]!r}")
+    name = data.get("name", "sweep")
+    if not _NAME.fullmatch(name):
+        raise ValueError(
+            f"{where}: 'name' {name!r} must be a plain folder name (letters, digits, '_', '-' "
+            "and '.', at most 64, starting with a letter or digit); it names sweep_<name>"
+        )
     spec = SweepSpec(
         task=task,
         materials=tuple(mats),
         seeds=tuple(seeds),
         settings=settings,
         fixed=fixed,
-        name=data.get("name", "sweep"),
+        name=name,
         description=data.get("description", ""),
         plot=data.get("plot", ""),
         source=source,
@@ -315,7 +339,7 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
 def load_spec(path: str | os.PathLike) -> SweepSpec:
     """Read a sweep spec from a ``.json`` or ``.toml`` file.
 
-    Keys: ``task`` (registered task name or ``"module:function"``), ``materials`` (list of
+    Keys: ``task`` (a registered task name, :func:`task_names`), ``materials`` (list of
     names), ``seeds`` (a count ``n`` meaning ``0..n-1``, or a list of integers), ``settings``
     (table of grid axes, each a non-empty list), ``fixed`` (table passed to every task),
     optional ``name``, ``description``, ``plot`` (metric shown in the summary plot).
@@ -682,7 +706,13 @@ def dask_local_cluster(n_workers: int = 2, **cluster_kwargs: Any) -> Iterator[An
     if int(n_workers) < 1:
         raise ValueError(f"n_workers must be >= 1, got {n_workers!r}")
     environ = dict(os.environ)
-    kwargs = {"threads_per_worker": 1, "processes": True, "dashboard_address": ":0"}
+    # loopback only: the scheduler and its dashboard are not reachable from other machines
+    kwargs = {
+        "threads_per_worker": 1,
+        "processes": True,
+        "host": "127.0.0.1",
+        "dashboard_address": "127.0.0.1:0",
+    }
     kwargs.update(cluster_kwargs)
     with dask.config.set(DASK_CONFIG):
         cluster = LocalCluster(n_workers=int(n_workers), **kwargs)

@@ -51,9 +51,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a file, a folder, a port, a host: one line naming it
+        print(f"gonio {args.command}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"gonio {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def os_error_text(exc: OSError) -> str:
+    """One line for an ``OSError``: the path(s) it names and the system's reason.
+
+    ``IsADirectoryError: [Errno 21] Is a directory: '/x/.j.tmp' -> '/x/j'`` becomes
+    ``'/x/j': Is a directory``; an error without a path (a port in use, a host that does not
+    answer) keeps its own text.
+    """
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    path = exc.filename2 if exc.filename2 is not None else exc.filename
+    if path is None:
+        return exc.strerror or str(exc) or type(exc).__name__
+    return f"{str(path)!r}: {reason}"
 
 
 def console_main() -> None:

@@ -1,7 +1,8 @@
-"""Helpers shared by the subcommands: JSON output and table printing."""
+"""Helpers shared by the subcommands: output-path checks, JSON output and table printing."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from collections.abc import Sequence
@@ -33,9 +34,87 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     return atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 
 
+def _existing_ancestor(p: Path) -> Path:
+    """The nearest existing ancestor of ``p`` (``p`` itself if it exists)."""
+    q = p.absolute()
+    while not q.exists() and q != q.parent:
+        q = q.parent
+    return q
+
+
+def _writable_parent(p: Path, text: str) -> None:
+    anc = _existing_ancestor(p.parent)
+    if not anc.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: {str(anc)!r} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"{text!r}: folder {str(anc)!r} is not writable")
+
+
+def output_file(text: str) -> str:
+    """``argparse`` type of an output file option: checked before any work starts.
+
+    The path must not be a folder, and its nearest existing ancestor must be a writable
+    folder (missing folders are created when the file is written). Returns ``text``.
+    """
+    p = Path(text)
+    if not text or text.endswith(("/", os.sep)) or p.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder, expected a file path")
+    _writable_parent(p, text)
+    return text
+
+
+def output_dir(text: str) -> str:
+    """``argparse`` type of an output folder option (see :func:`output_file`). Returns ``text``."""
+    p = Path(text)
+    if not text:
+        raise argparse.ArgumentTypeError("empty path, expected a folder")
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} exists and is not a folder")
+    _writable_parent(p, text)
+    return text
+
+
+def port_number(text: str) -> int:
+    """``argparse`` type of a TCP port option: an integer in [0, 65535] (0 = any free port)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer port number") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"{v} is outside the port range [0, 65535]")
+    return v
+
+
+def int_in(lower: int, upper: int, why: str = ""):
+    """``argparse`` type: an integer in ``[lower, upper]``; ``why`` explains the bound."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lower <= v <= upper:
+            raise argparse.ArgumentTypeError(
+                f"{v} is outside [{lower}, {upper}]" + (f" ({why})" if why else "")
+            )
+        return v
+
+    return parse
+
+
+def check_output_dir(text: str, option: str) -> str:
+    """:func:`output_dir` for a path computed after parsing; ``ValueError`` naming ``option``."""
+    try:
+        return output_dir(text)
+    except argparse.ArgumentTypeError as exc:
+        raise ValueError(f"{option}: {exc}") from None
+
+
 def add_json_option(parser) -> None:
     """The ``--json PATH`` option every result-producing subcommand has."""
-    parser.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument(
+        "--json", metavar="PATH", type=output_file, help="also write the results as JSON to PATH"
+    )
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:

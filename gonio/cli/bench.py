@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from gonio.cli._common import add_json_option, format_table, write_json
+from gonio.cli._common import add_json_option, format_table, output_file, write_json
 
 COMMAND = "bench"
 HELP = "benchmark run time against error for every accuracy knob, and ablate the skip rules"
@@ -25,7 +25,9 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--no-ablations", action="store_true", help="skip the ablation section")
     parser.add_argument("--csv", metavar="PATH", help="write the table as CSV")
-    parser.add_argument("--plot", metavar="PATH", help="write the Pareto plot (PNG)")
+    parser.add_argument(
+        "--plot", metavar="PATH", type=output_file, help="write the Pareto plot (PNG)"
+    )
     parser.add_argument("--list", action="store_true", help="list the knobs and ablations")
     add_json_option(parser)
 

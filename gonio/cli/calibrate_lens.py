@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, output_file, write_json
 
 COMMAND = "calibrate-lens"
 HELP = "calibrate a fisheye lens (Kannala-Brandt) from ChArUco board images"
@@ -13,7 +13,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--squares", type=int, nargs=2, default=(9, 7), metavar=("X", "Y"))
     parser.add_argument("--square-length", type=float, default=0.04, help="metres")
     parser.add_argument("--marker-length", type=float, default=0.02, help="metres")
-    parser.add_argument("--out", required=True, help="lens-calibration JSON to write")
+    parser.add_argument(
+        "--out", required=True, type=output_file, help="lens-calibration JSON to write"
+    )
     add_json_option(parser)
 
 
@@ -22,13 +24,16 @@ def run(args) -> int:
 
     from gonio.calibration.lens import calibrate_fisheye, make_board, write_lens_calibration
 
+    try:
+        board = make_board(*args.squares, args.square_length, args.marker_length)
+    except ValueError as exc:
+        raise ValueError(f"--squares / --square-length / --marker-length: {exc}") from None
     imgs = []
     for p in args.images:
         a = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
         if a is None:
             raise ValueError(f"cannot read image {p!r}")
         imgs.append(a)
-    board = make_board(args.squares[0], args.squares[1], args.square_length, args.marker_length)
     cal = calibrate_fisheye(imgs, board)
     write_lens_calibration(cal, args.out)
     lens = cal.lens

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, check_output_dir, int_in, output_dir, write_json
 
 COMMAND = "campaign"
 HELP = "capture, reduce, fit and report a material on a simulated instrument (LBL or Cornell)"
@@ -29,12 +29,16 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--plan",
-        default="incidence",
-        help="cornell: incidence | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o (deg)",
+        default=None,
+        help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
+        "(deg)",
     )
     parser.add_argument("--model", default=None, help="model to fit (default: the preset's)")
     parser.add_argument(
-        "--mirror", default="ellipsoid", choices=["ellipsoid", "hemisphere"], help="LBL dome"
+        "--mirror",
+        default=None,
+        choices=["ellipsoid", "hemisphere"],
+        help="LBL dome (default ellipsoid)",
     )
     parser.add_argument(
         "--angles",
@@ -55,17 +59,20 @@ def add_arguments(parser) -> None:
         help="other models fitted to the same samples ('' for none)",
     )
     parser.add_argument("--noise", default="on", help="off, on, or a factor (default on)")
-    parser.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    parser.add_argument(
+        "--seed", type=int_in(0, 2**63 - 1), default=0, help="campaign seed (default 0)"
+    )
     parser.add_argument(
         "--residual",
-        default="absolute",
+        default=None,
         choices=["absolute", "relative", "log", "li_torrance"],
-        help="fit residual",
+        help="fit residual (LBL; default absolute)",
     )
     parser.add_argument(
         "--out",
         default=None,
         metavar="DIR",
+        type=output_dir,
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
@@ -159,12 +166,39 @@ def parse_noise(text: str) -> float:
     return v
 
 
+#: Options of one instrument only -> the value that means "not given".
+_LBL_ONLY = {
+    "--model": ("model", None),
+    "--mirror": ("mirror", None),
+    "--angles": ("angles", None),
+    "--rotations": ("rotations", None),
+    "--compare": ("compare", None),
+    "--residual": ("residual", None),
+    "--d-over-r": ("d_over_r", None),
+    "--no-debias": ("no_debias", False),
+    "--workers": ("workers", None),
+}
+_CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
+
+
+def _refuse_other_instrument(args) -> None:
+    """An option of the other instrument is an error, not silently ignored."""
+    other = _LBL_ONLY if args.instrument == "cornell" else _CORNELL_ONLY
+    given = [opt for opt, (attr, unset) in other.items() if getattr(args, attr) != unset]
+    if given:
+        owner = "lbl" if args.instrument == "cornell" else "cornell"
+        raise ValueError(
+            f"{', '.join(given)}: option(s) of --instrument {owner} only, not of "
+            f"--instrument {args.instrument}"
+        )
+
+
 def _run_cornell(args) -> int:
     from gonio.campaign.cornell import run_cornell_campaign, summary_text
 
     s = run_cornell_campaign(
         args.material or "garnet_red_paint",
-        plan=args.plan,
+        plan=args.plan or "incidence",
         noise=parse_noise(args.noise) > 0,
         seed=args.seed,
         out=args.out,
@@ -181,6 +215,7 @@ def _run_cornell(args) -> int:
 
 
 def run(args) -> int:
+    _refuse_other_instrument(args)
     if args.instrument == "cornell":
         return _run_cornell(args)
     from gonio import campaign
@@ -189,10 +224,10 @@ def run(args) -> int:
     kw = dict(
         material=args.material,
         model=args.model,
-        mirror=args.mirror,
+        mirror=args.mirror or "ellipsoid",
         noise=parse_noise(args.noise),
         seed=args.seed,
-        residual=args.residual,
+        residual=args.residual or "absolute",
         plots=not args.no_plots,
         d_over_r=args.d_over_r,
         debias=not args.no_debias,
@@ -207,7 +242,7 @@ def run(args) -> int:
     if args.compare is not None:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
-    out = args.out or f"campaign_{args.material}_seed{args.seed}"
+    out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
     if not args.quiet:
         print(campaign.summary_table(res.summary))

@@ -25,6 +25,8 @@ import argparse
 import json
 import sys
 
+from gonio.cli._common import port_number
+
 COMMAND = "devices"
 HELP = "fake ESP300 / USB2000+ / PTP camera on a simulated bench (gonio devices serve)"
 
@@ -46,7 +48,10 @@ def add_arguments(parser) -> None:
         help="simulated seconds per real second (default 1)",
     )
     p.add_argument(
-        "--tcp-port", type=int, default=0, help="TCP port of the ESP300 (default: any free port)"
+        "--tcp-port",
+        type=port_number,
+        default=0,
+        help="TCP port of the ESP300 (default: any free port)",
     )
     p.add_argument(
         "--link", default=None, help="also keep a symlink to the ESP300 pty at this path"

@@ -82,14 +82,17 @@ def run(args) -> int:
         for k, v in r.params.items()
     ]
     print(format_table(("parameter", "value", "stderr", ""), rows))
+    state = "converged" if r.converged else "NOT converged"
+    if not r.identifiable:
+        state += ", NOT identifiable"
     print(
-        f"{r.model_name}: {'converged' if r.converged else 'NOT converged'}; "
+        f"{r.model_name}: {state}; "
         f"n = {r.n_samples}, rms = {r.rms:.4g} sr^-1, chi2/dof = {r.chi2_dof:.4g}"
     )
-    if "; note: " in r.message:
-        print("note:" + r.message.split("; note:", 1)[1])
+    for note in r.message.split("; note: ")[1:]:
+        print("note: " + note)
     if args.json:
         d = r.to_dict()
         d["samples"] = str(args.samples)
         write_json(args.json, d)
-    return 0 if r.converged else 1
+    return 0 if r.converged and r.identifiable else 1

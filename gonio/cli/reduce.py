@@ -8,7 +8,7 @@ References
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, output_file, write_json
 
 COMMAND = "reduce"
 HELP = "reduce raw LBL images (eq. 2, eq. 3, thinning) to a BRDF samples table"
@@ -24,7 +24,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--method", choices=("eq3", "exact"), default="eq3",
                         help="reflection angles by eq. 3 or the exact traced map")  # fmt: skip
     parser.add_argument("--no-thinning", action="store_true", help="one row per pixel")
-    parser.add_argument("--out", required=True, help="output samples file (.csv or .npz)")
+    parser.add_argument(
+        "--out", required=True, type=output_file, help="output samples file (.csv or .npz)"
+    )
     add_json_option(parser)
 
 

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from gonio.cli._common import add_json_option, format_table, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_output_dir,
+    format_table,
+    output_dir,
+    write_json,
+)
 
 COMMAND = "sweep"
 HELP = "run a grid of campaigns (materials × settings × seeds) and gather one results table"
@@ -16,6 +22,7 @@ def add_arguments(parser) -> None:
         "-o",
         "--out",
         metavar="DIR",
+        type=output_dir,
         help="results folder (default: sweep_<name> in the current folder); re-running into "
         "the same folder skips finished tasks",
     )
@@ -79,7 +86,7 @@ def run(args) -> int:
         executor = "process"
     else:
         executor = "inprocess"
-    out = Path(args.out) if args.out else Path(f"sweep_{spec.name}")
+    out = Path(check_output_dir(args.out or f"sweep_{spec.name}", "--out"))
     done = [0]
 
     def progress(res: dict) -> None:

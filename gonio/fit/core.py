@@ -929,6 +929,12 @@ class _Problem:
         for key, v in (init or {}).items():  # start values: init overrides, then fixed
             for i in self.expand(key):
                 self.values[i] = _as_float(v, key)
+                lo_i, hi_i = self.entries[i][2], self.entries[i][3]
+                if not lo_i <= self.values[i] <= hi_i:
+                    raise ValueError(
+                        f"init {self.names[i]} = {float(self.values[i])!r} is outside its "
+                        f"bounds [{lo_i}, {hi_i}]"
+                    )
         self.fixed_idx = self._fixed(fixed, free)
         self.lo = np.array([e[2] for e in self.entries])
         self.hi = np.array([e[3] for e in self.entries])
@@ -1027,8 +1033,8 @@ class _Problem:
             n_starts = max(
                 (DEFAULT_STARTS.get(m.name, 0) for _, m in _components(self.template)), default=0
             )
-        if n_starts < 0:
-            raise ValueError(f"n_starts must be >= 0, got {n_starts}")
+        if not 0 <= n_starts <= MAX_STARTS:
+            raise ValueError(f"n_starts must be in [0, {MAX_STARTS}], got {n_starts}")
         starts = [self.x0]
         for k in range(n_starts):
             xs = _random_start(self.entries, self.free_idx, self.x0, rng)
@@ -1181,7 +1187,10 @@ def _result(
         bounds={n: (float(p.lo[i]), float(p.hi[i])) for i, n in enumerate(names)},
         converged=bool(best.status > 0 and np.isfinite(chi2)),
         identifiable=rank_ok,
-        message=str(best.message) + _chi2_note(chi2_dof, data.sigma is not None),
+        message=str(best.message)
+        + _chi2_note(chi2_dof, data.sigma is not None)
+        + _identifiability_note(rank_ok, [names[i] for j, i in enumerate(free_idx) if free_inf[j]])
+        + _duplicates_note(data, m),
         rms=_rms(diff),
         rms_relative=_rms(diff[pos] / data.y[m][pos]) if pos.any() else math.nan,
         chi2=chi2,
@@ -1391,6 +1400,38 @@ def _chi2_note(chi2_dof: float, has_sigma: bool) -> str:
     return (
         f"; note: chi2/dof = {chi2_dof:.3g} with the samples' own sigma: a local minimum or a "
         "model that cannot describe the data (try n_starts= or init=)"
+    )
+
+
+#: Most extra random starts :func:`fit` runs (each is a full optimisation).
+MAX_STARTS = 10_000
+
+
+def _identifiability_note(rank_ok: bool, unbounded: list[str]) -> str:
+    """A note for a fit whose Jacobian is rank-deficient: some parameter combinations are
+    not constrained by the samples (their standard errors are infinite)."""
+    if rank_ok:
+        return ""
+    which = f" ({', '.join(unbounded)} unconstrained)" if unbounded else ""
+    return (
+        f"; note: not identifiable: the samples do not determine every free parameter{which}; "
+        "fix some (fixed=) or measure more geometries"
+    )
+
+
+def _duplicates_note(data: _Data, mask: NDArray) -> str:
+    """A note when rows repeat other rows exactly (a table given twice): the standard errors
+    assume independent samples, so each repeat shrinks them (by sqrt(2) for a doubled table)."""
+    cols = [data.wi[mask], data.wo[mask], data.y[mask][:, None]]
+    if data.band is not None:
+        cols.append(np.asarray(data.band)[mask][:, None].astype(np.float64))
+    key = np.concatenate(cols, axis=1)
+    n_dup = key.shape[0] - np.unique(key, axis=0).shape[0]
+    if n_dup == 0:
+        return ""
+    return (
+        f"; note: {n_dup} of {key.shape[0]} rows repeat other rows exactly: the standard "
+        "errors assume independent samples and are too small"
     )
 
 

@@ -102,7 +102,7 @@ def _read_csv(path: Path) -> BRDFSamples:
     meta: dict[str, Any] = {}
     header: list[str] | None = None
     rows: list[str] = []
-    with open(path, encoding="utf-8") as f:
+    with open(path, encoding="utf-8-sig") as f:  # -sig: a byte-order mark is not the header
         for line in f:
             s = line.strip()
             if not s:

@@ -41,8 +41,15 @@ def _presets() -> dict[str, dict[str, Any]]:
 
 
 def names(model: str | None = None) -> list[str]:
-    """Sorted preset names (optionally only those of one model)."""
+    """Sorted preset names (optionally only those of one registered model)."""
     p = _presets()
+    if model is not None:
+        from gonio import brdf
+
+        if model not in brdf.names():
+            raise ValueError(
+                f"unknown model {model!r}; registered models are: {', '.join(brdf.names())}"
+            )
     return sorted(n for n in p if model is None or p[n]["model"] == model)
 
 

@@ -72,3 +72,30 @@ def test_materials_presets():
     assert rec["source"].startswith("Ward 1992")
     with pytest.raises(ValueError, match="unknown material"):
         materials.get("unobtainium")
+
+
+_WI = np.array([np.sin(0.5), 0.0, np.cos(0.5)])
+_WO = np.array([-np.sin(0.6), 0.0, np.cos(0.6)])
+
+
+@pytest.mark.parametrize("name", [n for n in brdf.names() if n != "tabulated"])
+def test_every_model_refuses_non_unit_directions(name):
+    # issue 15 item 3: ward at 10 wi gave 0.032 instead of 3.82, cook_torrance 1e-10
+    m = brdf.create(name)
+    assert np.isfinite(m(_WI, _WO)).all()
+    for wi, wo in ((10 * _WI, _WO), (_WI, 0.5 * _WO), (np.zeros(3), _WO)):
+        with pytest.raises(ValueError, match="unit vectors"):
+            m(wi, wo)
+    batch_wi = np.stack([_WI, _WI, 1.01 * _WI])
+    with pytest.raises(ValueError, match=r"1 of 3 are not, e\.g\. wi\[2\]"):
+        m(batch_wi, np.stack([_WO] * 3))
+    with pytest.raises(ValueError, match="unit vectors"):
+        m.albedo(3 * _WI)
+    with pytest.raises(ValueError, match="unit vectors"):
+        m.delta(3 * _WI)
+
+
+def test_unit_tolerance_accepts_float32_directions():
+    w32 = (_WI.astype(np.float32)).astype(np.float64)
+    m = brdf.create("ward")
+    assert m(w32, _WO) == pytest.approx(m(_WI, _WO), rel=1e-5)

@@ -43,7 +43,7 @@ def test_defaults_and_below_horizon(name):
     m = brdf.create(name)
     up = np.array([0.3, 0.1, 0.9])
     up /= np.linalg.norm(up)
-    for below in ([0.6, 0.0, -0.8], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.6, 0.0, -0.0]):
+    for below in ([0.6, 0.0, -0.8], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, -0.0]):
         assert m(up, below) == 0.0
         assert m(below, up) == 0.0
     assert m(up, up) > 0.0

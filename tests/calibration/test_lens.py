@@ -16,3 +16,32 @@ def test_kannala_brandt_recovered():
     assert cal.rms < 0.2
     assert abs(cal.lens.fx / lens.fx - 1) < 1e-3
     assert abs(cal.lens.fy / lens.fy - 1) < 1e-3
+
+
+@pytest.fixture(scope="module")
+def views():
+    lens = make_lens("equisolid", 640, 480, fill=0.95)
+    board = make_board()
+    imgs = [render_board_view(lens, board, r, t) for r, t in board_poses(lens, board, 4)]
+    return board, imgs
+
+
+def test_the_same_view_three_times_is_refused(views):
+    # issue 15 item 7: accepted before with fx -3.4 % and rms 0.048 px
+    board, imgs = views
+    with pytest.raises(ValueError, match=r"only 1 of 3 views show the board at distinct poses"):
+        calibrate_fisheye([imgs[1]] * 3, board)
+    with pytest.raises(ValueError, match=r"only 2 of 3 .*; view 2 repeats view 0"):
+        calibrate_fisheye([imgs[1], imgs[2], imgs[1]], board)
+
+
+def test_a_repeated_view_among_distinct_ones_is_skipped(views):
+    board, imgs = views
+    cal = calibrate_fisheye([*imgs, imgs[0]], board)
+    assert cal.n_views == 4 and cal.info["views_repeated"] == [4]
+
+
+def test_board_larger_than_its_dictionary_is_refused_before_allocating():
+    with pytest.raises(ValueError, match=r"need 5000000000 ArUco markers, more than the 250"):
+        make_board(100000, 100000)
+    assert make_board(22, 22) is not None  # 242 markers: the largest square board of 4x4_250

@@ -120,3 +120,12 @@ def test_reduce_selected_rejects_bad_levels():
         reduce_selected(*triple, base_level=6, peak_level=5)
     with pytest.raises(ValueError, match="peak_fraction"):
         reduce_selected(*triple, peak_fraction=1.5)
+
+
+def test_binary_lens_file_names_the_file(tmp_path):
+    from gonio.calibration.reduce import load_lens
+
+    p = tmp_path / "lens.bin"
+    p.write_bytes(bytes(range(256)))
+    with pytest.raises(ValueError, match=r"lens calibration '.*lens\.bin': not a JSON lens file"):
+        load_lens(str(p))

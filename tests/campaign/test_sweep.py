@@ -107,7 +107,7 @@ def test_toml_and_json_specs_agree(tmp_path):
         ({**SPEC, "materials": []}, "'materials' must be a non-empty list"),
         ({**SPEC, "materials": ["rolled_brass", "rolled_brass"]}, "lists a material twice"),
         ({**SPEC, "materials": ["unobtainium"]}, "material 'unobtainium' is not a preset"),
-        ({**SPEC, "seeds": 0}, "'seeds' as a count must be >= 1, got 0"),
+        ({**SPEC, "seeds": 0}, r"'seeds' as a count must be in \[1, 100000\], got 0"),
         ({**SPEC, "seeds": [1, -2]}, "integers >= 0, got -2"),
         ({**SPEC, "seeds": [1, 1]}, "lists a seed twice"),
         ({**SPEC, "settings": {"noise": 0.1}}, "settings.noise must be a non-empty list"),
@@ -117,7 +117,12 @@ def test_toml_and_json_specs_agree(tmp_path):
         ({**SPEC, "fixed": {"noise": 0.1}}, "appear in both"),
         ({**SPEC, "settings": {"residual": ["l2"]}}, "residual must be one of"),
         ([1, 2], "expected a table/object at the top level"),
-        ({**SPEC, "task": "no_such_module_x:f"}, "cannot import module 'no_such_module_x'"),
+        ({**SPEC, "task": "no_such_module_x:f"}, "unknown task 'no_such_module_x:f'"),
+        ({**SPEC, "task": "this:s"}, "unknown task 'this:s'"),  # imports nothing
+        ({**SPEC, "name": "/../../escaped"}, "'name' '/../../escaped' must be a plain folder"),
+        ({**SPEC, "name": ".."}, "must be a plain folder name"),
+        ({**SPEC, "seeds": 100_000_000}, r"'seeds' as a count must be in \[1, 100000\]"),
+        ({**SPEC, "seeds": 50_000, "materials": ["a", "b", "c"]}, "the grid has 300000 points"),
         ({**SPEC, "task": 5}, "'task' must be a string, got 5"),
         ({**SPEC, "seeds": 2.5}, "'seeds' must be a count or a non-empty list of integers"),
         ({**SPEC, "seeds": True}, "'seeds' must be a count or a non-empty list of integers"),
@@ -518,3 +523,25 @@ def test_task_malloc_guard_in_dask_like_worker(monkeypatch):
     assert x == 1e6
     if sys.platform.startswith("linux"):
         assert g._libc is not None and g._libc[2] == 65536
+
+
+def test_a_spec_imports_no_module_it_names(tmp_path):
+    import subprocess
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('task = "this:s"\nmaterials = ["rolled_brass"]\nseeds = 1\n')
+    code = "import sys; from gonio.cli import main; sys.exit(main(sys.argv[1:]))"
+    p = subprocess.run([sys.executable, "-c", code, "sweep", str(spec), "--dry-run"],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert p.returncode == 2 and "unknown task 'this:s'" in p.stderr
+    assert "Beautiful is better than ugly" not in p.stdout  # `import this` prints the Zen
+
+
+def test_dask_local_cluster_listens_on_loopback_only():
+    pytest.importorskip("distributed")
+    psutil = pytest.importorskip("psutil")
+    with sweep.dask_local_cluster(1) as client:
+        assert client.dashboard_link.startswith("http://127.0.0.1:")
+        conns = psutil.Process().net_connections("tcp")
+        hosts = {c.laddr.ip for c in conns if c.status == psutil.CONN_LISTEN}
+    assert hosts == {"127.0.0.1"}

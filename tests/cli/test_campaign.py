@@ -72,3 +72,27 @@ def test_fit_command(tmp_path, capsys):
     assert main(["fit", str(path), "--model", "ward", "--fixed", "rho_d=0.2"]) == 0
     assert main(["fit", str(path), "--init", "rho_d"]) == 2
     assert main(["fit", str(tmp_path / "missing.csv")]) == 2
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (
+            ["--instrument", "cornell", "--mirror", "hemisphere"],
+            "--mirror: option(s) of --instrument lbl only",
+        ),
+        (["--instrument", "cornell", "--angles", "30"], "--angles: option(s) of --instrument lbl"),
+        (["--plan", "hemispherical"], "--plan: option(s) of --instrument cornell only"),
+        (["--through-drivers"], "--through-drivers: option(s) of --instrument cornell only"),
+    ],
+)
+def test_options_of_the_other_instrument_are_refused(tmp_path, capsys, argv, expected):
+    assert main(["campaign", *argv, "--out", str(tmp_path / "c"), "--quiet"]) == 2
+    assert expected in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_negative_seed_names_the_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["campaign", "--seed", "-1"])
+    assert "argument --seed: -1 is outside [0, " in capsys.readouterr().err

@@ -79,3 +79,10 @@ def test_render_bad_input(tmp_path, capsys, argv, match):
     assert rc == 2
     assert match in capsys.readouterr().err
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("opt", ["--width", "--height"])
+def test_render_size_is_bounded(tmp_path, capsys, opt):
+    with pytest.raises(SystemExit):
+        main(["render", opt, "100000", "--out", str(tmp_path / "x.tif")])
+    assert f"argument {opt}: 100000 is outside [2, 4096]" in capsys.readouterr().err

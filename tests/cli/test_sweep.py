@@ -51,7 +51,8 @@ def test_sweep_cli_bad_spec(tmp_path, capsys):
     spec.write_text(TOML.replace("seeds = 2", "seeds = -1"))
     assert main(["sweep", str(spec)]) == 2
     err = capsys.readouterr().err
-    assert "gonio sweep: error: sweep spec" in err and "'seeds' as a count must be >= 1" in err
+    assert "gonio sweep: error: sweep spec" in err
+    assert "'seeds' as a count must be in [1, 100000]" in err
     assert main(["sweep", str(tmp_path / "none.toml")]) == 2
     assert "does not exist" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse: mutually exclusive executors

@@ -270,3 +270,99 @@ def test_disconnect_mid_reply_over_pty_reconnects_by_link(tmp_path):
         assert srv.disconnects == 1 and os.path.realpath(link) == srv.port
         assert srv.port == first or os.path.exists(srv.port)
         esp.close()
+
+
+# -- TCP clients: per-connection state, explicit refusal (issue 15 item 8) --------------------
+def _ask(sock, cmd: bytes, timeout: float = 2.0) -> bytes:
+
+    sock.settimeout(timeout)
+    sock.sendall(cmd)
+    buf = b""
+    try:
+        while not buf.endswith(b"\r\n"):
+            chunk = sock.recv(200)
+            if not chunk:
+                break
+            buf += chunk
+    except TimeoutError:
+        pass
+    return buf
+
+
+def _wait_for(cond, timeout: float = 2.0) -> None:
+    t0 = time.monotonic()
+    while not cond() and time.monotonic() - t0 < timeout:
+        time.sleep(0.01)
+
+
+def test_tcp_client_state_does_not_leak_to_the_next_client():
+    import socket
+
+    with FakeESP300Server(bench(), tcp=True) as srv:
+        a = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        a.sendall(b"1P")  # disconnect mid-line
+        _wait_for(lambda: srv._client is not None)
+        a.close()
+        _wait_for(lambda: srv._client is None)
+        b = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        assert _ask(b, b"VE?\r") == b"ESP300 Version 3.08 09/09/02\r\n"
+        b.close()
+        a = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        a.sendall(b"WS1e12\r")  # a wait that would hold the queue for ever
+        _wait_for(lambda: srv.tcp_firmware._hold is not None)
+        a.close()
+        _wait_for(lambda: srv._client is None)
+        b = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        t0 = time.monotonic()
+        assert _ask(b, b"VE?\r") == b"ESP300 Version 3.08 09/09/02\r\n"
+        assert time.monotonic() - t0 < 1.0
+        b.close()
+
+
+def test_concurrent_tcp_clients_are_served_or_refused_explicitly():
+    import socket
+
+    from gonio.drivers.fake.esp300 import BUSY_REPLY
+
+    with FakeESP300Server(bench(), tcp=True) as srv:
+        first = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        assert _ask(first, b"VE?\r").startswith(b"ESP300")
+        others = [socket.create_connection(("127.0.0.1", srv.tcp_port)) for _ in range(40)]
+        replies = [_ask(s, b"VE?\r") for s in others]
+        assert replies == [BUSY_REPLY] * 40 and srv.refused == 40
+        assert _ask(first, b"VE?\r").startswith(b"ESP300")  # the served client keeps its link
+        for s in [first, *others]:
+            s.close()
+
+
+def test_link_over_an_existing_file_is_refused_and_the_file_kept(tmp_path):
+    victim = tmp_path / "precious.txt"
+    victim.write_text("keep me\n")
+    with pytest.raises(ValueError, match="exists and is not a symlink"):
+        FakeESP300Server(bench(), link=str(victim)).start()
+    assert victim.read_text() == "keep me\n" and not victim.is_symlink()
+
+
+def test_stop_removes_only_its_own_link(tmp_path):
+    link = tmp_path / "esp"
+    srv = FakeESP300Server(bench(), link=str(link)).start()
+    os.unlink(link)
+    os.symlink("/dev/null", link)  # someone else's link now
+    srv.stop()
+    assert os.readlink(link) == "/dev/null"
+
+
+def test_tcp_port_in_use_names_the_port():
+    import socket
+
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    port = busy.getsockname()[1]
+    try:
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{port}"):
+            FakeESP300Server(bench(), tcp=port).start()
+    finally:
+        busy.close()
+    with pytest.raises(ValueError, match=r"\[0, 65535\]"):
+        FakeESP300Server(bench(), tcp=70000).start()

@@ -330,3 +330,59 @@ def test_fake_spectrometer_shows_the_cornell_simulator_spectrum():
         s.close()
     finally:
         fakeusb.uninstall(name)
+
+
+# -- the JSON server's bounded resources (issue 15 items 5 and 8) -----------------------------
+def _raw_call(f, op, *args):
+    import json
+
+    f.write(json.dumps({"op": op, "args": list(args)}).encode() + b"\n")
+    f.flush()
+    return json.loads(f.readline())
+
+
+def test_remote_server_refuses_huge_reads_before_allocating(bus):
+    import socket
+
+    name, _, _ = bus
+    srv = fakeusb.serve_remote(name)
+    try:
+        host, port = srv.address.split(":")
+        with socket.create_connection((host, int(port))) as s:
+            f = s.makefile("rwb")
+            key = _raw_call(f, "enumerate_devices")["ok"][0]
+            _raw_call(f, "open_device", key)
+            r = _raw_call(f, "bulk_read", key, 0x81, 0, 2**40, 100)
+            assert r["error"]["msg"].startswith("ValueError: bulk_read length 1099511627776")
+            assert str(fakeusb.MAX_TRANSFER) in r["error"]["msg"]
+            assert _raw_call(f, "get_device_descriptor", key)["ok"]["idVendor"] > 0
+    finally:
+        srv.close()
+
+
+def test_remote_server_bounds_its_client_threads(bus):
+    import json
+    import socket
+    import threading
+
+    name, _, _ = bus
+    srv = fakeusb.serve_remote(name)
+    host, port = srv.address.split(":")
+    n0 = threading.active_count()
+    socks = [socket.create_connection((host, int(port))) for _ in range(fakeusb.MAX_CLIENTS)]
+    try:
+        time.sleep(0.2)
+        assert threading.active_count() - n0 == fakeusb.MAX_CLIENTS
+        extra = [socket.create_connection((host, int(port))) for _ in range(10)]
+        for s in extra:
+            s.settimeout(2.0)
+            reply = json.loads(s.makefile("rb").readline())
+            assert reply["error"]["msg"].startswith("busy:")
+            s.close()
+        assert threading.active_count() - n0 == fakeusb.MAX_CLIENTS and srv.refused == 10
+    finally:
+        for s in socks:
+            s.close()
+        srv.close()
+    time.sleep(0.2)
+    assert threading.active_count() <= n0

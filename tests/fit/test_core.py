@@ -556,3 +556,33 @@ def test_a_fit_stuck_far_from_the_data_says_so():
     bad = fit(s, "ward", init=low, guess=False)
     assert bad.chi2_dof > CHI2_NOTE and "local minimum" in bad.message
     assert np.isfinite(list(bad.params.values())).all()
+
+
+# ------------------------------------------------------------------ issue 15 item 11
+def test_unidentifiable_fit_says_so_in_its_message():
+    true = brdf.create("lambert", rho=0.2) + brdf.create(
+        "ward", rho_d=0.1, rho_s=0.1, alpha_x=0.1, alpha_y=0.1
+    )
+    r = fit.fit(_samples(true, n_ti=4, n_o=60), "lambert + ward")
+    assert "note: not identifiable" in r.message and "lambert.rho" in r.message
+
+
+def test_init_outside_the_bounds_is_refused_not_clipped():
+    s = _samples(brdf.create("ward", **BRASS), n_ti=4, n_o=60)
+    with pytest.raises(ValueError, match=r"init alpha_x = 5.0 is outside its bounds \[0.0001, 1"):
+        fit.fit(s, "ward", init={"alpha_x": 5.0})
+
+
+def test_number_of_starts_is_bounded():
+    s = _samples(brdf.create("ward", **BRASS), n_ti=4, n_o=60)
+    with pytest.raises(ValueError, match=r"n_starts must be in \[0, 10000\], got 100000000"):
+        fit.fit(s, "ward", n_starts=100_000_000)
+
+
+def test_repeated_rows_are_noted():
+    s = _samples(brdf.create("ward", **BRASS), noise=0.02, n_ti=4, n_o=60)
+    once = fit.fit(s, "ward")
+    twice = fit.fit(BRDFSamples.concatenate([s, s]), "ward")
+    assert "repeat" not in once.message
+    assert f"note: {len(s)} of {2 * len(s)} rows repeat other rows exactly" in twice.message
+    assert twice.stderr["rho_s"] == pytest.approx(once.stderr["rho_s"] / math.sqrt(2), rel=0.02)

@@ -1,0 +1,186 @@
+"""SIGKILL at points across a whole campaign, then ``--resume`` (issue 15): the result is
+byte-identical to an uninterrupted run, no ``.tmp`` is left and no process outlives its parent.
+
+Each run is killed several times in a row (every resume is killed again later), so one
+campaign covers several kill points: for LBL one in the last fifth of the capture (some groups
+written, the rest being written by the pool) and one in the fit (``samples.csv`` on disk); for
+Cornell one in the measurement (at a random time) and one in the fit. The slow sweep draws
+more points at random.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+psutil = pytest.importorskip("psutil")
+
+_MAIN = "import sys; from gonio.cli import main; sys.exit(main(sys.argv[1:]))"
+LBL = ["--angles", "20,60", "--rotations", "0,90", "--workers", "2"]
+N_GROUPS_LBL = 6  # 2 x (standard+background) + 2 x 2 rotations
+PLAN = "theta_i,phi_i,theta_o,phi_o\n" + "".join(
+    f"{ti},0,{to},{po}\n" for ti in (10, 40, 70) for to, po in ((10, 180), (35, 180), (20, 90),
+                                                                 (50, 135))
+)  # fmt: skip
+
+
+def _cmd(args: list[str], out: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-c", _MAIN, "campaign", *args, "--out", str(out), "--quiet", *extra]
+
+
+def _done_groups(out: Path) -> int:
+    return len(list(out.glob("raw/*/done.json")))
+
+
+def _kill_when(args: list[str], out: Path, when, timeout: float = 120.0) -> bool:
+    """Start the campaign (resuming), SIGKILL it once ``when(out, t)`` holds; True if killed
+    (False: it finished first). Asserts that no child outlives it and no .tmp is left."""
+    p = subprocess.Popen(_cmd(args, out, "--resume"), stdout=subprocess.DEVNULL,
+                         stderr=subprocess.PIPE)  # fmt: skip
+    t0 = time.monotonic()
+    proc = psutil.Process(p.pid)
+    children: list = []
+    try:
+        while p.poll() is None and not when(out, time.monotonic() - t0):
+            try:
+                children = proc.children(recursive=True) or children
+            except psutil.Error:
+                pass
+            assert time.monotonic() - t0 < timeout, "campaign did not reach its kill point"
+            time.sleep(0.002)
+        if p.poll() is not None:
+            assert p.returncode in (0, 1), p.stderr.read().decode()
+            return False
+        children = proc.children(recursive=True) or children
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        p.stderr.close()
+    _gone, alive = psutil.wait_procs(children, timeout=10)
+    for c in alive:  # (a failing test leaves nothing running either)
+        with contextlib.suppress(psutil.Error):
+            c.kill()
+    assert not alive, f"processes left behind: {alive}"
+    return True
+
+
+#: JSON fields that are wall-clock times (the one thing a resumed run may change)
+_TIMES = ("timings_s", "time_s")
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    got = {}
+    for f in sorted(out.rglob("*")):
+        rel = f.relative_to(out).as_posix()
+        if f.is_file() and rel != ".lock":
+            got[rel] = f.read_bytes()
+    for name in ("summary.json", "fit.json"):
+        if name in got:
+            doc = json.loads(got[name])
+            for k in _TIMES:
+                doc.pop(k, None)
+            doc.get("n_captures", {}).pop("resumed_groups", None)
+            got[name] = json.dumps(doc, sort_keys=True).encode()
+    return got
+
+
+def _check_same(ref: Path, out: Path) -> None:
+    assert not list(out.rglob("*.tmp"))
+    a, b = _files(ref), _files(out)
+    assert sorted(a) == sorted(b)
+    for k in a:
+        assert a[k] == b[k], f"{k} differs from the uninterrupted run's"
+
+
+def _lbl(tmp_path: Path, points: list) -> None:
+    ref = tmp_path / "ref"
+    subprocess.run(_cmd(LBL, ref), check=True, capture_output=True)
+    out = tmp_path / "killed"
+    killed = [_kill_when(LBL, out, w) for w in points]
+    assert all(killed)
+    subprocess.run(_cmd(LBL, out, "--resume"), check=True, capture_output=True)
+    _check_same(ref, out)
+
+
+def _cornell(tmp_path: Path, points: list) -> None:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    plan = tmp_path / "plan.csv"
+    plan.write_text(PLAN)
+    args = ["--instrument", "cornell", "--plan", str(plan)]
+    ref = tmp_path / "ref"
+    subprocess.run(_cmd(args, ref), check=True, capture_output=True)
+    out = tmp_path / "killed"
+    assert all(_kill_when(args, out, w) for w in points)
+    subprocess.run(_cmd(args, out, "--resume"), check=True, capture_output=True)
+    # plan.json names the plan file's path: the same plan, another folder
+    for d in (ref, out):
+        (d / "plan.json").unlink()
+    _check_same(ref, out)
+
+
+def _last_fifth_of_capture(k: int):
+    return lambda out, t: _done_groups(out) >= k
+
+
+def _in_fit(out: Path, t: float) -> bool:
+    return (out / "samples.csv").is_file()
+
+
+def _after(seconds: float):
+    return lambda out, t: t >= seconds
+
+
+def test_lbl_killed_in_the_capture_and_in_the_fit_resumes_identically(tmp_path):
+    _lbl(tmp_path, [_last_fifth_of_capture(N_GROUPS_LBL - 1), _in_fit])
+
+
+def test_cornell_killed_in_the_measurement_and_in_the_fit_resumes_identically(tmp_path):
+    rng = np.random.default_rng(15)
+    _cornell(tmp_path, [_after(float(rng.uniform(1.0, 2.5))), _in_fit])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(3))
+def test_random_kill_points_sweep(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    lbl = [_last_fifth_of_capture(int(k)) for k in sorted(rng.integers(1, N_GROUPS_LBL, 2))]
+    _lbl(tmp_path / "lbl", [*lbl, _in_fit])
+    _cornell(tmp_path / "cornell", [_after(float(rng.uniform(0.5, 3.0))), _in_fit])
+
+
+def test_sigterm_stops_the_campaign_and_every_child(tmp_path):
+    """``kill PID`` / ``Popen.terminate()``: handled like Ctrl-C, no worker left running."""
+    log = tmp_path / "stderr.txt"
+    with open(log, "wb") as err:  # a file, not a pipe: a surviving child would hold a pipe open
+        p = subprocess.Popen(_cmd(LBL, tmp_path / "t"), stdout=subprocess.DEVNULL, stderr=err)
+    proc = psutil.Process(p.pid)
+    t0 = time.monotonic()
+    children: list = []
+    try:
+        while len(children) < 3 and p.poll() is None:  # plot worker + 2 pool workers
+            assert time.monotonic() - t0 < 120
+            children = proc.children(recursive=True)
+            time.sleep(0.005)
+        assert p.poll() is None, "campaign ended before its workers started"
+        p.terminate()
+        rc = p.wait(timeout=60)
+        _gone, alive = psutil.wait_procs(children, timeout=10)
+    finally:
+        for c in [proc, *children]:
+            with contextlib.suppress(psutil.Error):
+                c.kill()
+    assert not alive, f"processes left behind after SIGTERM: {alive}"
+    text = log.read_text()
+    assert rc == 130 and "interrupted" in text and "Traceback" not in text
+    assert not list((tmp_path / "t").rglob("*.tmp"))
