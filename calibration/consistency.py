@@ -58,7 +58,7 @@ def _field(meta: Mapping[str, Any], keys: tuple[str, ...], src: str, what: str) 
         raise ValueError(f"{src}: side-car field {keys[0]!r} ({what}) is missing")
     try:
         f = float(v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{src}: side-car field {keys[0]!r} must be a number, got {v!r}") from None
     if not (math.isfinite(f) and f > 0):
         raise ValueError(f"{src}: side-car field {keys[0]!r} must be finite and > 0, got {v!r}")
@@ -71,7 +71,7 @@ def _adc_max(meta: Mapping[str, Any], src: str) -> int:
         bits = _meta_get(meta, ("adc_bits", "bit_depth"), 16)
         try:
             b = int(bits)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(
                 f"{src}: side-car field 'adc_bits' must be an integer, got {bits!r}"
             ) from None
@@ -80,7 +80,7 @@ def _adc_max(meta: Mapping[str, Any], src: str) -> int:
         return 2**b - 1
     try:
         t = int(top)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(
             f"{src}: side-car field 'max_dn' must be an integer, got {top!r}"
         ) from None
@@ -119,7 +119,7 @@ def check_frame(image: NDArray, meta: Mapping[str, Any], src: str) -> dict[str, 
     black = _meta_get(meta, ("black_level_dn", "black_level_adu", "black_level", "bias_adu"), 0.0)
     try:
         black = float(black)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(
             f"{src}: side-car field 'black_level_dn' must be a number, got {black!r}"
         ) from None
@@ -142,7 +142,7 @@ def sidecar_angle(
         raise ValueError(f"{src}: side-car field {key!r} (radians) is missing")
     try:
         f = float(v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(
             f"{src}: side-car field {key!r} must be a number (radians), got {v!r}"
         ) from None

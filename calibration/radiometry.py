@@ -82,6 +82,18 @@ def _pos(value: Any, name: str, allow_zero: bool = False) -> float:
     return v
 
 
+#: Upper limits of the sensor side-car fields: far beyond any real camera (EMVA 1288 data
+#: sheets: gains of 0.01-100 e-/DN, read noise of 1-100 e-, ADCs of at most 32 bits, dark
+#: currents below 1e6 e-/s), low enough that their squares stay finite in float64.
+SENSOR_LIMITS = {
+    "gain": 1e6,
+    "read_noise": 1e6,
+    "black_level": 2.0**32,
+    "white_level": 2.0**32,
+    "dark_current": 1e12,
+}
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """What a lab knows about its linear sensor (from the side-car metadata).
@@ -107,11 +119,15 @@ class SensorModel:
     dark_current: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "gain", _pos(self.gain, "gain"))
-        object.__setattr__(self, "read_noise", _pos(self.read_noise, "read_noise", True))
-        object.__setattr__(self, "black_level", _pos(self.black_level, "black_level", True))
-        object.__setattr__(self, "white_level", _pos(self.white_level, "white_level"))
-        object.__setattr__(self, "dark_current", _pos(self.dark_current, "dark_current", True))
+        for name, zero_ok in (("gain", False), ("read_noise", True), ("black_level", True),
+                              ("white_level", False), ("dark_current", True)):  # fmt: skip
+            v = _pos(getattr(self, name), name, zero_ok)
+            if v > SENSOR_LIMITS[name]:
+                raise ValueError(
+                    f"{name} = {v!r} is above the physical limit {SENSOR_LIMITS[name]:g} of a "
+                    "sensor side-car"
+                )
+            object.__setattr__(self, name, v)
 
     @classmethod
     def from_metadata(cls, meta: Mapping[str, Any]) -> SensorModel:
