@@ -359,10 +359,15 @@ def measure_raw(
     through ``first``, then :func:`read_sequence`; each dark and signal spectrum is the mean
     of ``n_reads`` reads."""
     t, filt = auto_exposure(read, config, target, first)
-    reads: dict[tuple[str, bool], list] = {}
-    for q, shutter in read_sequence(first):
-        kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
-        reads[(q, shutter)] = [read(t, **kw) for _ in range(n_reads)]
+    for _ in range(7):  # a saturated signal read (a polarising sample) is read again shorter
+        reads: dict[tuple[str, bool], list] = {}
+        for q, shutter in read_sequence(first):
+            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
+            reads[(q, shutter)] = [read(t, **kw) for _ in range(n_reads)]
+        sat = any(np.max(r) >= config.saturation_counts for q in "sp" for r in reads[(q, True)])
+        if not sat or t <= config.t_min:
+            break
+        t = max(config.t_min, round(0.3 * t, 6))
     return {
         q: {
             "signal": np.mean(reads[(q, True)], axis=0),
