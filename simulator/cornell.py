@@ -750,6 +750,11 @@ class CornellInstrument(TrueInstrument):
             mean = np.rint(mean)  # the ADC (part of the noise: noise=False is an ideal detector)
         return np.clip(mean, 0.0, c.saturation_counts)
 
+    def _pos(self) -> dict[str, float]:
+        """Where the stages really are, in degrees, with the sample in view."""
+        a = self.angles if self.fx is None else self.true_angles
+        return {k: float(np.degrees(v)) for k, v in zip(AXES, a)}
+
     def read(
         self,
         integration_time_s: float,
