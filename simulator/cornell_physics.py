@@ -33,11 +33,17 @@ __all__ = [
 
 @lru_cache(maxsize=4)
 def _disc_grid(n: int) -> NDArray[np.float64]:
-    """Centres of an n x n grid of squares that lie inside the unit disc: (M, 2)."""
-    x = (np.arange(n) + 0.5) / n * 2.0 - 1.0
-    xx, yy = np.meshgrid(x, x)
-    ok = xx**2 + yy**2 <= 1.0
-    return np.c_[xx[ok], yy[ok]]
+    """Jittered-stratified points in the unit disc: one uniform point in each of the n x n
+    squares of side 2/n, kept where inside the disc (fixed seed): (M, 2). Jitter makes the
+    area error of a straight or curved cut fall as about n^-1.5 instead of the n^-1 of a
+    regular raster, whose columns are all in or all out."""
+    g = np.random.default_rng(20050101)
+    k = np.arange(n)
+    xx, yy = np.meshgrid(k, k)
+    x = (xx + g.random((n, n))) / n * 2.0 - 1.0
+    y = (yy + g.random((n, n))) / n * 2.0 - 1.0
+    ok = x**2 + y**2 <= 1.0
+    return np.c_[x[ok], y[ok]]
 
 
 def _axes(w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
@@ -51,7 +57,7 @@ def _axes(w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
 
 
 def lit_fraction(
-    wi: NDArray, wo: NDArray, beam_mm: float, fov_mm: float, sample_mm: float, grid: int = 48
+    wi: NDArray, wo: NDArray, beam_mm: float, fov_mm: float, sample_mm: float, grid: int = 128
 ) -> NDArray[np.float64]:
     """Fraction of the detector's field of view that lies on the lit part of the sample.
 
@@ -59,8 +65,8 @@ def lit_fraction(
     ``fov/2/cos θo`` along the viewing azimuth and ``fov/2`` across it; the lit spot of the
     beam (diameter ``beam_mm``) an ellipse ``beam/2/cos θi`` by ``beam/2`` along the
     incidence azimuth; the sample a square of side ``sample_mm`` with its edges along x and
-    y; all centred on the stage's axis. The fraction is counted on a ``grid`` x ``grid``
-    raster of the field of view (equal areas). 0 means off for each size (infinite beam,
+    y; all centred on the stage's axis. The fraction is counted on jittered-stratified
+    points of the field of view (``grid`` x ``grid`` strata, equal areas). 0 means off for each size (infinite beam,
     point field of view, infinite sample).
     """
     wi, wo = np.atleast_2d(wi), np.atleast_2d(wo)
