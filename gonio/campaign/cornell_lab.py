@@ -123,7 +123,7 @@ def cone_response(
 
 
 @lru_cache(maxsize=4)
-def _polar_rule(rings: int = 12, nphi: int = 24) -> NDArray:
+def _polar_rule(rings: int = 24, nphi: int = 48) -> NDArray:
     """Equal-area polar points in the unit disc: (rings * nphi, 2)."""
     r = np.sqrt((np.arange(rings) + 0.5) / rings)
     phi = (np.arange(nphi) + 0.5) * (2 * np.pi / nphi)
