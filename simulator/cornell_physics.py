@@ -72,23 +72,39 @@ def lit_fraction(
     wi, wo = np.atleast_2d(wi), np.atleast_2d(wo)
     if fov_mm <= 0:
         return np.ones(len(wi))
-    g = _disc_grid(grid)
+    phi = np.arange(72) * (2 * np.pi / 72)
+    rim = _inside(np.c_[1.01 * np.cos(phi), 1.01 * np.sin(phi)], wi, wo, beam_mm, fov_mm,
+                  sample_mm)  # fmt: skip
+    out = np.ones(len(wi))
+    part = ~np.all(rim, axis=1)  # a rim 1 % outside the field of view (its chords' sagitta
+    if part.any():  # is 1e-3) wholly lit: the field of view is (fraction 1 exactly)
+        g = _disc_grid(grid)
+        out[part] = _inside(g, wi[part], wo[part], beam_mm, fov_mm, sample_mm).mean(axis=1)
+    return out
+
+
+def _inside(g: NDArray, wi: NDArray, wo: NDArray, beam_mm: float, fov_mm: float,
+            sample_mm: float) -> NDArray[np.bool_]:  # fmt: skip
+    """Which of the unit-disc points ``g`` (M, 2), mapped onto each field of view, are lit
+    and on the sample: (N, M)."""
+    gx, gy = g[None, :, 0], g[None, :, 1]
     uo, vo, so = _axes(wo)
     half = 0.5 * fov_mm
-    # points (N, M, 2) on the sample plane
-    p = (half * so)[:, None, None] * g[None, :, :1] * uo[:, None, :]
-    p = p + half * g[None, :, 1:2] * vo[:, None, :]
-    ok = np.ones(p.shape[:2], bool)
+    ax, ay = (half * so)[:, None] * uo[:, None, 0], (half * so)[:, None] * uo[:, None, 1]
+    bx, by = half * vo[:, None, 0], half * vo[:, None, 1]
+    px, py = gx * ax + gy * bx, gx * ay + gy * by  # points on the sample plane (N, M)
+    ok = np.ones(px.shape, bool)
     if beam_mm > 0:
         ui, vi, si = _axes(wi)
-        a = 0.5 * beam_mm * si
+        a = (0.5 * beam_mm * si)[:, None]
         b = 0.5 * beam_mm
-        x = np.einsum("nmk,nk->nm", p, ui) / a[:, None]
-        y = np.einsum("nmk,nk->nm", p, vi) / b
+        x = (px * ui[:, None, 0] + py * ui[:, None, 1]) / a
+        y = (px * vi[:, None, 0] + py * vi[:, None, 1]) / b
         ok &= x * x + y * y <= 1.0
     if sample_mm > 0:
-        ok &= np.all(np.abs(p) <= 0.5 * sample_mm, axis=2)
-    return ok.mean(axis=1)
+        h = 0.5 * sample_mm
+        ok &= (np.abs(px) <= h) & (np.abs(py) <= h)
+    return ok
 
 
 def taper_weights(r: NDArray, w: NDArray, alpha: float, taper: float) -> NDArray:
