@@ -309,7 +309,9 @@ def _shift_row(s: dict, ideal: dict) -> str:
         r = [s["fit"][f"{p}[{b}]"] / ideal["fit"][f"{p}[{b}]"] - 1 for b in range(31)
              if abs(ideal["fit"][f"{p}[{b}]"]) > 0.02]  # fmt: skip
         if r:
-            out.append(f"{p} median {100 * np.median(r):+.2f}% max|.| {100 * np.max(np.abs(r)):.2f}%")
+            out.append(
+                f"{p} median {100 * np.median(r):+.2f}% max|.| {100 * np.max(np.abs(r)):.2f}%"
+            )
     return ", ".join(out) + f", chi2/dof {s['chi2_dof']:.3g}"
 
 
@@ -338,8 +340,10 @@ def ab(plan: str, material: str, rounds: int) -> None:
             run_cornell_campaign(material, plan=plan, seed=0, effects=fx)
             t[label].append(time.perf_counter() - t0)
     r, i = np.median(t["realistic"]), np.median(t["ideal"])
-    print(f"{material} {plan}: realistic {r:.2f} s, ideal {i:.2f} s (medians of {rounds}), "
-          f"ratio {r / i:.2f}; all: {json.dumps({k: [round(x, 2) for x in v] for k, v in t.items()})}")
+    print(
+        f"{material} {plan}: realistic {r:.2f} s, ideal {i:.2f} s (medians of {rounds}), "
+        f"ratio {r / i:.2f}; all: {json.dumps({k: [round(x, 2) for x in v] for k, v in t.items()})}"
+    )
 
 
 def main() -> None:

@@ -253,7 +253,9 @@ def check_magnitudes(m: Mapping[str, float]) -> None:
         try:
             v = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"effect {name} must be a number ({spec.unit}), got {value!r}") from None
+            raise ValueError(
+                f"effect {name} must be a number ({spec.unit}), got {value!r}"
+            ) from None
         if not spec.contains(v):
             raise ValueError(
                 f"effect {name} = {value!r} is outside its valid range {spec.range_text()} "
@@ -308,15 +310,20 @@ def resolve_effects(
     return None if is_ideal(m) else m
 
 
-def lab_knowledge(preset: str | Mapping[str, Distribution] | None) -> dict[str, tuple[float, float]]:
+def lab_knowledge(
+    preset: str | Mapping[str, Distribution] | None,
+) -> dict[str, tuple[float, float]]:
     """What a laboratory knows of its instrument: per effect the nominal value (the preset's
     typical magnitude: a data sheet, a characterisation) and its standard uncertainty (the
     spread between instruments). ``{}`` for None or the ideal preset's zeros."""
     if preset is None:
         return {}
     dists = PRESETS[preset] if isinstance(preset, str) else preset
-    return {n: (float(d.typical), float(d.spread)) for n, d in dists.items()
-            if d.typical != 0.0 or d.spread != 0.0}  # fmt: skip
+    return {
+        n: (float(d.typical), float(d.spread))
+        for n, d in dists.items()
+        if d.typical != 0.0 or d.spread != 0.0
+    }
 
 
 def lamp_factor(m: Mapping[str, float], t_s: float) -> float:

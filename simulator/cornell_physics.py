@@ -66,15 +66,14 @@ def lit_fraction(
     beam (diameter ``beam_mm``) an ellipse ``beam/2/cos θi`` by ``beam/2`` along the
     incidence azimuth; the sample a square of side ``sample_mm`` with its edges along x and
     y; all centred on the stage's axis. The fraction is counted on jittered-stratified
-    points of the field of view (``grid`` x ``grid`` strata, equal areas). 0 means off for each size (infinite beam,
-    point field of view, infinite sample).
+    points of the field of view (``grid`` x ``grid`` strata, equal areas). 0 means off for each
+    size (infinite beam, point field of view, infinite sample).
     """
     wi, wo = np.atleast_2d(wi), np.atleast_2d(wo)
     if fov_mm <= 0:
         return np.ones(len(wi))
     phi = np.arange(72) * (2 * np.pi / 72)
-    rim = _inside(np.c_[1.01 * np.cos(phi), 1.01 * np.sin(phi)], wi, wo, beam_mm, fov_mm,
-                  sample_mm)  # fmt: skip
+    rim = _inside(np.c_[1.01 * np.cos(phi), 1.01 * np.sin(phi)], wi, wo, beam_mm, fov_mm, sample_mm)
     out = np.ones(len(wi))
     part = ~np.all(rim, axis=1)  # a rim 1 % outside the field of view (its chords' sagitta
     if part.any():  # is 1e-3) wholly lit: the field of view is (fraction 1 exactly)
@@ -83,8 +82,9 @@ def lit_fraction(
     return out
 
 
-def _inside(g: NDArray, wi: NDArray, wo: NDArray, beam_mm: float, fov_mm: float,
-            sample_mm: float) -> NDArray[np.bool_]:  # fmt: skip
+def _inside(
+    g: NDArray, wi: NDArray, wo: NDArray, beam_mm: float, fov_mm: float, sample_mm: float
+) -> NDArray[np.bool_]:
     """Which of the unit-disc points ``g`` (M, 2), mapped onto each field of view, are lit
     and on the sample: (N, M)."""
     gx, gy = g[None, :, 0], g[None, :, 1]
@@ -154,8 +154,9 @@ def slit_convolve(sig: NDArray, wl: NDArray, fwhm_nm: float) -> NDArray:
     from scipy.ndimage import gaussian_filter1d
 
     step = float(np.mean(np.diff(wl)))
-    return gaussian_filter1d(sig, fwhm_nm / (2.0 * math.sqrt(2.0 * math.log(2.0))) / step,
-                             mode="nearest")  # fmt: skip
+    return gaussian_filter1d(
+        sig, fwhm_nm / (2.0 * math.sqrt(2.0 * math.log(2.0))) / step, mode="nearest"
+    )
 
 
 def fresnel_polarisation(wi: NDArray, wo: NDArray, n: float) -> NDArray:

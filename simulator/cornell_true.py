@@ -4,7 +4,8 @@
 :class:`TrueInstrument` is mixed into the instrument; its methods run only when the
 configuration carries non-zero effects (``CornellConfig.effects``), so the ideal instrument
 keeps its own code path, bit for bit. What each effect is and where its magnitude comes from:
-:data:`gonio.simulator.cornell_effects.EFFECTS`; the physics: :mod:`gonio.simulator.cornell_physics`.
+:data:`gonio.simulator.cornell_effects.EFFECTS`; the physics:
+:mod:`gonio.simulator.cornell_physics`.
 """
 
 from __future__ import annotations
@@ -14,11 +15,10 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-
 from gonio.simulator import cornell_physics as phys
 from gonio.simulator.cornell_effects import lamp_factor
 from gonio.simulator.effects import effect_rng
+from numpy.typing import NDArray
 
 __all__ = ["TrueInstrument"]
 
@@ -112,7 +112,11 @@ class TrueInstrument:
             po = _cone_points(wo[chunk], rd, pd)
             f = sample.evaluate_unchecked(pi[:, :, None, :], po[:, None, :, :])
             wgt = ws[:, None] * wd[None, :] * np.clip(pi[:, :, 2], 0, None)[:, :, None]
-            sm = np.einsum("mijb,mij->mb", f, wgt) if f.ndim == 4 else np.einsum("mij,mij->m", f, wgt)
+            sm = (
+                np.einsum("mijb,mij->mb", f, wgt)
+                if f.ndim == 4
+                else np.einsum("mij,mij->m", f, wgt)
+            )
             if out is None:
                 out = np.empty((len(a),) + sm.shape[1:])
             cc = np.where(ci[chunk] > 0, ci[chunk], 1.0)
@@ -123,8 +127,9 @@ class TrueInstrument:
             area = _lens_area(beta, self._alpha_s, self._alpha_d)
             w = area / (math.pi * self._alpha_d**2 * self.omega_true) / np.where(ci > 0, ci, 1.0)
             out = out + (rho * w[:, None] if rho.ndim == 2 else rho * w)
-        lit = phys.lit_fraction(wi0, wo0, m["beam_diameter_mm"], m["fov_diameter_mm"],
-                                m["sample_size_mm"])  # fmt: skip
+        lit = phys.lit_fraction(
+            wi0, wo0, m["beam_diameter_mm"], m["fov_diameter_mm"], m["sample_size_mm"]
+        )
         out = out * (lit[:, None] if out.ndim == 2 else lit)
         if m["sample_polarisation"] and sample.name == "li_torrance":
             pol = self._fx_polarisation(wi, wo)
@@ -144,9 +149,16 @@ class TrueInstrument:
         return self.fx["sample_polarisation"] * phys.fresnel_polarisation(wi, wo, n) * share
 
     def _fx_counts(
-        self, positions: Mapping[str, float], t: float, wl: NDArray, target: int, q: str | None,
-        shutter: bool, filt: bool, blocked: bool,
-    ) -> NDArray:  # fmt: skip
+        self,
+        positions: Mapping[str, float],
+        t: float,
+        wl: NDArray,
+        target: int,
+        q: str | None,
+        shutter: bool,
+        filt: bool,
+        blocked: bool,
+    ) -> NDArray:
         """Noise-free counts of one read of the true instrument (see ``expected_counts``)."""
         from gonio.simulator.cornell import TARGETS, forward
         from gonio.simulator.spectra import spectralon_reflectance
@@ -170,8 +182,11 @@ class TrueInstrument:
         elif target == TARGETS["standard"]:
             wi, wo = forward(ang, c.kinematics)
             ce = float(self._fx_cos(wi)[0])
-            lit = float(phys.lit_fraction(wi, wo, m["beam_diameter_mm"], m["fov_diameter_mm"],
-                                          m["sample_size_mm"])[0])  # fmt: skip
+            lit = float(
+                phys.lit_fraction(
+                    wi, wo, m["beam_diameter_mm"], m["fov_diameter_mm"], m["sample_size_mm"]
+                )[0]
+            )
             sig = k * spectralon_reflectance(wl) / math.pi * ce * lit
         elif target == TARGETS["direct"]:
             sig = k / self.omega_true

@@ -742,11 +742,10 @@ def _prepare(
     """Check the inputs, realise the true instrument, build the ordered plan (refusing the
     geometries whose field of view leaves the lit spot, when asked) and write
     ``plan.json``."""
-    from gonio.simulator.cornell_effects import lab_knowledge, resolve_effects
-
     from gonio import materials
     from gonio.campaign.drivers import eeprom_coeffs
     from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_effects import lab_knowledge, resolve_effects
 
     cfg = config or CornellConfig()
     # the spectrometer's calibration as its EEPROM stores it, on both paths
@@ -812,7 +811,9 @@ def _check_corrections(corrections: dict | None) -> dict[str, Any]:
     corr = {**DEFAULT_CORRECTIONS, **(corrections or {})}
     unknown = set(corr) - set(DEFAULT_CORRECTIONS)
     if unknown:
-        raise ValueError(f"corrections {sorted(unknown)} unknown; expected {list(DEFAULT_CORRECTIONS)}")
+        raise ValueError(
+            f"corrections {sorted(unknown)} unknown; expected {list(DEFAULT_CORRECTIONS)}"
+        )
     if corr["footprint"] not in ("refuse", "divide", "none"):
         raise ValueError(
             f"corrections footprint = {corr['footprint']!r}: expected 'refuse', 'divide' or 'none'"
@@ -848,7 +849,9 @@ def _refuse_footprint(p: Any, lab: Any, knowledge: dict) -> tuple[Any, int]:
     return q, int(bad.sum())
 
 
-def _apply_corrections(setup: _Setup, samples: BRDFSamples, ref_obj: Any, extra: dict) -> BRDFSamples:
+def _apply_corrections(
+    setup: _Setup, samples: BRDFSamples, ref_obj: Any, extra: dict
+) -> BRDFSamples:
     """The laboratory's corrections of the reduced samples: the nominal footprint fraction
     (``footprint="divide"``) and the slit function's second-order bias (``slit``)."""
     from gonio.campaign.cornell_lab import footprint_fraction, slit_correction
@@ -858,9 +861,9 @@ def _apply_corrections(setup: _Setup, samples: BRDFSamples, ref_obj: Any, extra:
     vals = samples.value.reshape(-1, len(BANDS_NM)).copy()
     sig = samples.sigma.reshape(vals.shape).copy() if samples.has_sigma else None
     if corr["footprint"] == "divide" and _nominal(kn, "fov_diameter_mm") > 0:
-        frac = footprint_fraction(samples.wi[:: len(BANDS_NM)], samples.wo[:: len(BANDS_NM)],
-                                  _nominal(kn, "beam_diameter_mm"),
-                                  _nominal(kn, "fov_diameter_mm"), _nominal(kn, "sample_size_mm"))  # fmt: skip
+        sizes = [_nominal(kn, k) for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")]
+        nb = len(BANDS_NM)
+        frac = footprint_fraction(samples.wi[::nb], samples.wo[::nb], *sizes)
         keep = frac > 0.05
         extra["n_footprint_divided"] = int(np.sum(frac < 1.0))
         vals[keep] /= frac[keep, None]
@@ -879,7 +882,9 @@ def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str
     times (they are estimated), extra summary fields."""
     from gonio.simulator.cornell import CornellInstrument, simulate_campaign
 
-    stray = _nominal(setup.knowledge, "stray_light_fraction") if setup.corrections.get("stray") else 0.0
+    stray = (
+        _nominal(setup.knowledge, "stray_light_fraction") if setup.corrections.get("stray") else 0.0
+    )
     samples = simulate_campaign(
         setup.plan, setup.material, rng=setup.seed, noise=setup.noise,
         reference=setup.reference, config=setup.cfg, order=False,
@@ -1033,8 +1038,11 @@ def summary_text(summary: dict[str, Any]) -> str:
 
         lines.append(budget_text(summary["budget"]))
     if summary.get("effects") is not None:
-        lines.append(f"  instrument {summary['effects']!s} (seed {summary.get('instrument_seed')}),"
-                     f" {summary.get('n_refused_footprint', 0)} geometries refused (footprint)")  # fmt: skip
+        n_ref = summary.get("n_refused_footprint", 0)
+        lines.append(
+            f"  instrument {summary['effects']!s} (seed {summary.get('instrument_seed')}),"
+            f" {n_ref} geometries refused (footprint)"
+        )
     lines.append(
         "  time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timings_s"].items())
     )

@@ -53,8 +53,13 @@ def combine(stat: float | None, contributions: dict[str, float], k: float = 2.0)
     """``stat`` and the contributions combined in quadrature; expanded at coverage ``k``."""
     s = 0.0 if stat is None or not math.isfinite(stat) else float(stat)
     uc = math.sqrt(s * s + sum(float(v) ** 2 for v in contributions.values()))
-    return {"stat": s, "contributions": {n: float(v) for n, v in contributions.items()},
-            "combined": uc, "U": k * uc, "k": k}  # fmt: skip
+    return {
+        "stat": s,
+        "contributions": {n: float(v) for n, v in contributions.items()},
+        "combined": uc,
+        "U": k * uc,
+        "k": k,
+    }
 
 
 def _unique(samples: BRDFSamples, nb: int) -> tuple[NDArray, NDArray, NDArray, NDArray]:
@@ -99,9 +104,17 @@ def _u_after(knowledge: dict, name: str, corrected: bool) -> float:
 
 
 def _patterns(
-    model: Any, wi: NDArray, wo: NDArray, y: NDArray, kref: NDArray, cfg: Any,
-    knowledge: dict, corr: dict, lamp_u: float, mirror_part: bool = False,
-) -> dict[str, NDArray]:  # fmt: skip
+    model: Any,
+    wi: NDArray,
+    wo: NDArray,
+    y: NDArray,
+    kref: NDArray,
+    cfg: Any,
+    knowledge: dict,
+    corr: dict,
+    lamp_u: float,
+    mirror_part: bool = False,
+) -> dict[str, NDArray]:
     """The laboratory's model of each effect's change of the readings, at its uncertainty
     after correction: ``{effect: (G, nb)}`` (or a list of patterns to add in quadrature)."""
     from gonio.campaign.cornell_lab import cone_response, footprint_fraction
@@ -123,8 +136,8 @@ def _patterns(
         d2 = np.zeros_like(y)
         d2[:, 1:-1] = (y[:, 2:] - 2 * y[:, 1:-1] + y[:, :-2]) / 100.0
         dlk = np.gradient(np.log(kref), 10.0)
-        out["slit_fwhm_nm"] = u * 2 * fw / (2.0 * math.sqrt(2.0 * math.log(2.0))) ** 2 * (
-            dlk * d1 + 0.5 * d2
+        out["slit_fwhm_nm"] = (
+            u * 2 * fw / (2.0 * math.sqrt(2.0 * math.log(2.0))) ** 2 * (dlk * d1 + 0.5 * d2)
         )
     u = _u_after(knowledge, "wavelength_shift_nm", False)
     if u:
@@ -165,8 +178,10 @@ def _patterns(
             pats.append(_model_values(model, *forward(a, cfg.kinematics), nb) - f0)
         out["stage_backlash_deg"] = pats
     if corr["footprint"] != "refuse" and knowledge.get("fov_diameter_mm", (0, 0))[0] > 0:
-        sizes = [knowledge.get(k, (0.0, 0.0))[0] for k in
-                 ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")]  # fmt: skip
+        sizes = [
+            knowledge.get(k, (0.0, 0.0))[0]
+            for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")
+        ]
         frac = footprint_fraction(wi, wo, *sizes)
         if corr["footprint"] == "none":
             out["footprint"] = y * (frac - 1)[:, None]
@@ -203,9 +218,18 @@ def _lamp_u(summary: dict, knowledge: dict, corr: dict, every: int) -> float:
 
 
 def cornell_budget(
-    res: Any, info: dict, samples: BRDFSamples, ref: Any, cfg: Any, knowledge: dict,
-    corrections: dict, summary: dict, *, reference_every: int = 0, k: float = 2.0,
-) -> dict[str, Any]:  # fmt: skip
+    res: Any,
+    info: dict,
+    samples: BRDFSamples,
+    ref: Any,
+    cfg: Any,
+    knowledge: dict,
+    corrections: dict,
+    summary: dict,
+    *,
+    reference_every: int = 0,
+    k: float = 2.0,
+) -> dict[str, Any]:
     """The budget of a fitted Cornell campaign (module docstring).
 
     Returns ``{"parameters": {name: combine(...) + truth_within_U}, "k_summary": {k_dd: ...},
@@ -223,8 +247,18 @@ def cornell_budget(
     lamp_u = _lamp_u(summary, knowledge, corrections, reference_every) if knowledge else 0.0
     pats = {}
     if knowledge:
-        pats = _patterns(model, wi, wo, y, kref, cfg, knowledge, corrections, lamp_u,
-                         bool(info.get("mirror_part")))  # fmt: skip
+        pats = _patterns(
+            model,
+            wi,
+            wo,
+            y,
+            kref,
+            cfg,
+            knowledge,
+            corrections,
+            lamp_u,
+            bool(info.get("mirror_part")),
+        )
     cols, names = [], []
     for name, p in pats.items():
         for q in p if isinstance(p, list) else [p]:
@@ -256,8 +290,9 @@ def cornell_budget(
     if "sigma/tau" in summary.get("fit", {}) and "tau" in params and "sigma" not in params:
         r, t = summary["fit"]["sigma/tau"], float(res.params["tau"])
         pt = params["tau"]
-        params["sigma/tau"] = combine(pt["stat"] * r / t,
-                                      {n: v * r / t for n, v in pt["contributions"].items()}, k)  # fmt: skip
+        params["sigma/tau"] = combine(
+            pt["stat"] * r / t, {n: v * r / t for n, v in pt["contributions"].items()}, k
+        )
     return _with_truth(params, summary, list(dict.fromkeys(names)))
 
 
@@ -273,8 +308,9 @@ def _with_truth(params: dict, summary: dict, effects: list[str]) -> dict[str, An
             n += 1
             n_in += int(b["truth_within_U"])
             if "[" in p:
-                s = ks.setdefault(p.split("[")[0], {"n": 0, "n_within_U": 0, "rel_U": [],
-                                                     "abs_err": []})  # fmt: skip
+                s = ks.setdefault(
+                    p.split("[")[0], {"n": 0, "n_within_U": 0, "rel_U": [], "abs_err": []}
+                )
                 s["n"] += 1
                 s["n_within_U"] += int(b["truth_within_U"])
                 s["rel_U"].append(b["U"] / max(abs(fit[p]), 1e-12))
@@ -282,8 +318,12 @@ def _with_truth(params: dict, summary: dict, effects: list[str]) -> dict[str, An
     for s in ks.values():
         s["median_rel_U"] = float(np.median(s.pop("rel_U")))
         s["rms_error"] = float(np.sqrt(np.mean(np.square(s.pop("abs_err")))))
-    return {"parameters": params, "k_summary": ks, "effects": effects,
-            "coverage": {"n": n, "n_within_U": n_in}}  # fmt: skip
+    return {
+        "parameters": params,
+        "k_summary": ks,
+        "effects": effects,
+        "coverage": {"n": n, "n_within_U": n_in},
+    }
 
 
 def budget_text(budget: dict[str, Any]) -> str:
@@ -294,12 +334,15 @@ def budget_text(budget: dict[str, Any]) -> str:
         if b is None:
             continue
         top = sorted(b["contributions"].items(), key=lambda kv: -kv[1])[:3]
-        lines.append(f"  budget {p}: stat {b['stat']:.3g}, combined {b['combined']:.3g}, "
-                     f"U(k=2) {b['U']:.3g}; largest: "
-                     + ", ".join(f"{n} {v:.2g}" for n, v in top))  # fmt: skip
+        lines.append(
+            f"  budget {p}: stat {b['stat']:.3g}, combined {b['combined']:.3g}, "
+            f"U(k=2) {b['U']:.3g}; largest: " + ", ".join(f"{n} {v:.2g}" for n, v in top)
+        )
     for kname, s in budget["k_summary"].items():
-        lines.append(f"  budget {kname}: median U/k {100 * s['median_rel_U']:.2f}%, "
-                     f"truth within U {s['n_within_U']}/{s['n']}")  # fmt: skip
+        lines.append(
+            f"  budget {kname}: median U/k {100 * s['median_rel_U']:.2f}%, "
+            f"truth within U {s['n_within_U']}/{s['n']}"
+        )
     c = budget["coverage"]
     lines.append(f"  budget coverage: {c['n_within_U']}/{c['n']} parameters within U (k=2)")
     return "\n".join(lines)

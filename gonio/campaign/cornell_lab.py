@@ -68,8 +68,11 @@ def _frame(w: NDArray) -> tuple[NDArray, NDArray]:
 def _points(w: NDArray, r: NDArray, phi: NDArray) -> NDArray:
     t1, t2 = _frame(w)
     c, s = np.cos(r), np.sin(r)
-    return (c[None, :, None] * w[:, None, :] + (s * np.cos(phi))[None, :, None] * t1[:, None, :]
-            + (s * np.sin(phi))[None, :, None] * t2[:, None, :])  # fmt: skip
+    return (
+        c[None, :, None] * w[:, None, :]
+        + (s * np.cos(phi))[None, :, None] * t1[:, None, :]
+        + (s * np.sin(phi))[None, :, None] * t2[:, None, :]
+    )
 
 
 def cone_response(
@@ -127,8 +130,10 @@ def _polar_rule(rings: int = 24, nphi: int = 48) -> NDArray:
     """Equal-area polar points in the unit disc: (rings * nphi, 2)."""
     r = np.sqrt((np.arange(rings) + 0.5) / rings)
     phi = (np.arange(nphi) + 0.5) * (2 * np.pi / nphi)
-    return np.c_[np.repeat(r, nphi) * np.tile(np.cos(phi), rings),
-                 np.repeat(r, nphi) * np.tile(np.sin(phi), rings)]  # fmt: skip
+    return np.c_[
+        np.repeat(r, nphi) * np.tile(np.cos(phi), rings),
+        np.repeat(r, nphi) * np.tile(np.sin(phi), rings),
+    ]
 
 
 def _ellipse_points(w: NDArray, diameter: float, unit: NDArray) -> NDArray:
@@ -139,8 +144,10 @@ def _ellipse_points(w: NDArray, diameter: float, unit: NDArray) -> NDArray:
     u = np.where(r[:, None] > 1e-12, xy / np.where(r > 1e-12, r, 1)[:, None], [1.0, 0.0])
     v = np.c_[-u[:, 1], u[:, 0]]
     a = 0.5 * diameter / np.clip(w[:, 2], 1e-6, None)
-    return (a[:, None, None] * unit[None, :, :1] * u[:, None, :]
-            + 0.5 * diameter * unit[None, :, 1:2] * v[:, None, :])  # fmt: skip
+    return (
+        a[:, None, None] * unit[None, :, :1] * u[:, None, :]
+        + 0.5 * diameter * unit[None, :, 1:2] * v[:, None, :]
+    )
 
 
 def _inside(p: NDArray, wi: NDArray, beam: float, sample: float) -> NDArray:

@@ -28,8 +28,13 @@ def test_combine_adds_in_quadrature_and_expands():
 
 
 def test_realistic_campaign_reports_a_budget_that_covers_the_truth(tmp_path):
-    s = run_cornell_campaign("garnet_red_paint", plan="incidence",
-                             plan_kw={"theta_i_deg": (30.0, 60.0)}, seed=0, out=tmp_path)  # fmt: skip
+    s = run_cornell_campaign(
+        "garnet_red_paint",
+        plan="incidence",
+        plan_kw={"theta_i_deg": (30.0, 60.0)},
+        seed=0,
+        out=tmp_path,
+    )
     b = s["budget"]
     free = [k for k in s["within_3_sigma"] if k != "sigma/tau"]  # the fitted parameters
     assert set(free) <= set(b["parameters"])
@@ -45,6 +50,14 @@ def test_realistic_campaign_reports_a_budget_that_covers_the_truth(tmp_path):
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert on_disk["budget"]["coverage"] == cov
     assert "budget tau" in summary_text(s) and "within U" in summary_text(s)
-    ideal = run_cornell_campaign("garnet_red_paint", plan="incidence", max_geometries=20,
-                                 plan_kw={"theta_i_deg": (30.0,)}, seed=0, effects=None)  # fmt: skip
-    assert all(not e["contributions"].get("lamp_drift") for e in ideal["budget"]["parameters"].values())
+    ideal = run_cornell_campaign(
+        "garnet_red_paint",
+        plan="incidence",
+        max_geometries=20,
+        plan_kw={"theta_i_deg": (30.0,)},
+        seed=0,
+        effects=None,
+    )
+    assert all(
+        not e["contributions"].get("lamp_drift") for e in ideal["budget"]["parameters"].values()
+    )

@@ -37,7 +37,7 @@ def test_slit_correction_removes_most_of_the_slit_bias():
     ratio of the convolved signal to the convolved reference, then corrected on the bands."""
     wl = np.linspace(380.0, 720.0, 3401)
     f = 0.05 + 0.55 / (1 + np.exp(-(wl - 600.0) / 12.0))
-    k = (wl / 560.0) ** 4 * np.exp(-((wl - 560) / 150) ** 2)
+    k = (wl / 560.0) ** 4 * np.exp(-(((wl - 560) / 150) ** 2))
     meas = slit_convolve(k * f, wl, 5.0) / slit_convolve(k, wl, 5.0)
     bands = np.arange(400.0, 701.0, 10.0)
     m, truth, kb = (np.interp(bands, wl, v) for v in (meas, f, k))
@@ -63,8 +63,15 @@ def test_drift_correction_from_re_measured_references():
     reference at the start the ramp biases the shape (tau) and the k's; references every 8
     geometries, interpolated in time, remove it (measured: tau -2.7 % -> -0.009 %, median
     k_dd +7.9 % -> +0.04 %)."""
-    kw = dict(plan="incidence", plan_kw={"theta_i_deg": (30.0,)}, max_geometries=40, seed=2,
-              noise=False, budget=False, effects={"lamp_drift": 0.2})  # fmt: skip
+    kw = dict(
+        plan="incidence",
+        plan_kw={"theta_i_deg": (30.0,)},
+        max_geometries=40,
+        seed=2,
+        noise=False,
+        budget=False,
+        effects={"lamp_drift": 0.2},
+    )
     ideal = run_cornell_campaign("laser_paper", **{**kw, "effects": None})
     raw = run_cornell_campaign("laser_paper", reference_every=0, **kw)
     fixed = run_cornell_campaign("laser_paper", reference_every=8, **kw)

@@ -26,8 +26,10 @@ def _fingerprint(s) -> str:
 def test_every_effect_at_zero_is_the_ideal_instrument_bit_for_bit():
     """Samples of the instrument before the effects existed (the effects branch before
     issue 18, seed 3, this plan) — reproduced by None, the ideal preset and all zeros."""
-    before = {"garnet_red_paint": "9d9d6110b3c91f4c",
-              "aluminized_non_glare_glass": "402839ef99ffeb55"}  # fmt: skip
+    before = {
+        "garnet_red_paint": "9d9d6110b3c91f4c",
+        "aluminized_non_glare_glass": "402839ef99ffeb55",
+    }
     zeros = {name: 0.0 for name in EFFECTS}
     for m, fp in before.items():
         for fx in (None, "ideal", zeros):
@@ -69,14 +71,25 @@ def test_every_effect_changes_what_the_instrument_reads():
     base = run_cornell_campaign("garnet_red_paint", seed=1, effects=None, noise=False, **SHORT)
     v0 = base["_samples"].value
     for name in EFFECTS:
-        if name in ("beam_diameter_mm", "sample_size_mm", "polariser_error_deg",
-                    "sample_polarisation"):
+        if name in (
+            "beam_diameter_mm",
+            "sample_size_mm",
+            "polariser_error_deg",
+            "sample_polarisation",
+        ):
             continue  # with a field of view / a polariser error only (below)
         one = {name: m[name] or 0.5 * EFFECTS[name].valid[1]}
         if name == "fov_diameter_mm":
             one = {"fov_diameter_mm": 60.0, "sample_size_mm": 101.6, "beam_diameter_mm": 25.0}
-        s = run_cornell_campaign("garnet_red_paint", seed=1, effects=one, noise=False,
-                                 reference_every=2, corrections=NO_CORRECTION, **SHORT)  # fmt: skip
+        s = run_cornell_campaign(
+            "garnet_red_paint",
+            seed=1,
+            effects=one,
+            noise=False,
+            reference_every=2,
+            corrections=NO_CORRECTION,
+            **SHORT,
+        )
         assert not np.allclose(s["_samples"].value, v0, rtol=1e-7, atol=0), name
     # a polarising sample: the s/p average is exact with orthogonal polariser positions, and
     # no longer with the p position 3 deg off
