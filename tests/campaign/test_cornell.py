@@ -198,7 +198,7 @@ def test_default_cli_campaign_is_fast_and_accurate(tmp_path, capsys):
     assert js["converged"] and js["fit_mode"] == "sigma_fixed"
     assert js["relative_error"]["sigma/tau"] < 5e-3
     cov = js["budget"]["coverage"]
-    assert cov["n"] == 94 and cov["n_within_U"] >= 0.9 * cov["n"]
+    assert cov["n"] == 95 and cov["n_within_U"] >= 0.9 * cov["n"]  # 93 k, tau, sigma/tau
     # was 73 s on a quiet machine (261 s loaded) with finite-difference Jacobians over 94
     # parameters; about 1 s now. Generous bound for a loaded machine.
     assert js["timings_s"]["fit"] < 30
