@@ -222,8 +222,14 @@ def served(plan: str, material: str, max_geometries: int | None, theta_i: float 
     kw = {"theta_i_deg": (theta_i,)} if theta_i is not None else {}
     p = build_plan(plan, max_geometries=max_geometries, **kw)
     t = time.perf_counter()
-    a = run_cornell_campaign(
-        material, plan=plan, plan_kw=kw, max_geometries=max_geometries, seed=0, fit=False
+    a = run_cornell_campaign(  # the served bench is the ideal instrument
+        material,
+        plan=plan,
+        plan_kw=kw,
+        max_geometries=max_geometries,
+        seed=0,
+        fit=False,
+        effects=None,
     )
     t_in = time.perf_counter() - t
     cmd = [sys.executable, "-c", "import sys; from gonio.cli import main; sys.exit(main())",
