@@ -13,6 +13,15 @@ time of a full hemispherical campaign in-process and through the fake devices.
     python benchmarks/bench_hw_campaign.py served [--plan hemispherical] [--theta-i 40]
         an external driver script against `gonio devices serve --instrument cornell`
     python benchmarks/bench_hw_campaign.py degeneracy
+    python benchmarks/bench_hw_campaign.py budget [--seeds 10] [--materials a,b] [--plan P]
+        coverage of the expanded uncertainty (k = 2) on the realistic instrument over seeds
+        (each seed a different instrument and noise): per material and parameter group the
+        bias, rms error, median U, the share of parameters with the truth within U, U / rms
+    python benchmarks/bench_hw_campaign.py shifts [--materials a,b]
+        footprint, lamp drift and stray light injected alone: shifts of the fit without and
+        with the laboratory's correction
+    python benchmarks/bench_hw_campaign.py ab [--materials a] [--seeds 2]
+        wall time of the realistic vs the ideal Cornell campaign, alternating A B A B
 
 accuracy/timing/degeneracy print one JSON line per run (summary without samples); table and
 stderr print text tables.
@@ -213,8 +222,14 @@ def served(plan: str, material: str, max_geometries: int | None, theta_i: float 
     kw = {"theta_i_deg": (theta_i,)} if theta_i is not None else {}
     p = build_plan(plan, max_geometries=max_geometries, **kw)
     t = time.perf_counter()
-    a = run_cornell_campaign(
-        material, plan=plan, plan_kw=kw, max_geometries=max_geometries, seed=0, fit=False
+    a = run_cornell_campaign(  # the served bench is the ideal instrument
+        material,
+        plan=plan,
+        plan_kw=kw,
+        max_geometries=max_geometries,
+        seed=0,
+        fit=False,
+        effects=None,
     )
     t_in = time.perf_counter() - t
     cmd = [sys.executable, "-c", "import sys; from gonio.cli import main; sys.exit(main())",
@@ -245,11 +260,104 @@ def served(plan: str, material: str, max_geometries: int | None, theta_i: float 
     )  # fmt: skip
 
 
+def _groups(s: dict) -> dict[str, list[str]]:
+    g: dict[str, list[str]] = {}
+    for p in s["budget"]["parameters"]:
+        if p in s["truth"]:
+            g.setdefault(p.split("[")[0], []).append(p)
+    return g
+
+
+def budget_coverage(plan: str, materials, n_seeds: int, seed0: int = 0) -> None:
+    """Coverage of U (k = 2) over ``n_seeds`` realistic instruments per material."""
+    print(f"{'material':26s} {'param':9s} {'n':>4s} {'bias':>10s} {'rms err':>10s} "
+          f"{'median U':>10s} {'within U':>9s} {'U/rms':>7s}")  # fmt: skip
+    tot_n = tot_in = 0
+    for m in materials:
+        rows: dict[str, dict[str, list]] = {}
+        for j in range(n_seeds):
+            s = run_cornell_campaign(m, plan=plan, seed=seed0 + j)
+            b = s["budget"]["parameters"]
+            for g, names in _groups(s).items():
+                r = rows.setdefault(g, {"err": [], "U": [], "in": []})
+                for p in names:
+                    r["err"].append(s["fit"][p] - s["truth"][p])
+                    r["U"].append(b[p]["U"])
+                    r["in"].append(b[p]["truth_within_U"])
+        for g, r in rows.items():
+            e, u = np.array(r["err"]), np.array(r["U"])
+            rms = float(np.sqrt(np.mean(e**2)))
+            tot_n += len(e)
+            tot_in += int(np.sum(r["in"]))
+            print(f"{m[:26]:26s} {g:9s} {len(e):4d} {np.mean(e):10.3g} {rms:10.3g} "
+                  f"{np.median(u):10.3g} {100 * np.mean(r['in']):8.1f}% "
+                  f"{np.median(u) / rms if rms else float('nan'):7.2f}", flush=True)  # fmt: skip
+    print(f"all: {tot_in}/{tot_n} = {100 * tot_in / max(tot_n, 1):.1f}% of parameters within U")
+
+
+_SHIFTS = {
+    "footprint": ({"beam_diameter_mm": 25.0, "fov_diameter_mm": 8.0, "sample_size_mm": 101.6},
+                  {"footprint": "none"}, {"footprint": "refuse"}),
+    "footprint_divide": ({"beam_diameter_mm": 25.0, "fov_diameter_mm": 8.0,
+                          "sample_size_mm": 101.6}, {"footprint": "none"},
+                         {"footprint": "divide"}),
+    "drift": ({"lamp_drift": 0.0155, "lamp_warmup": 0.005}, {"drift": False}, {"drift": True}),
+    "stray": ({"stray_light_fraction": 1e-3}, {"stray": False}, {"stray": True}),
+}  # fmt: skip
+
+
+def _shift_row(s: dict, ideal: dict) -> str:
+    out = []
+    for p in ("tau",) + tuple(k for k in ("k_dd", "k_uds", "k_fs") if f"{k}[0]" in s["fit"]):
+        if p == "tau":
+            out.append(f"tau {100 * (s['fit']['tau'] / ideal['fit']['tau'] - 1):+.3f}%")
+            continue
+        r = [s["fit"][f"{p}[{b}]"] / ideal["fit"][f"{p}[{b}]"] - 1 for b in range(31)
+             if abs(ideal["fit"][f"{p}[{b}]"]) > 0.02]  # fmt: skip
+        if r:
+            out.append(
+                f"{p} median {100 * np.median(r):+.2f}% max|.| {100 * np.max(np.abs(r)):.2f}%"
+            )
+    return ", ".join(out) + f", chi2/dof {s['chi2_dof']:.3g}"
+
+
+def shifts(plan: str, materials, seed: int) -> None:
+    """Each effect alone at a typical magnitude, fitted without and with its correction,
+    against the ideal instrument with the same noise seed (the drift: +1 % over the
+    campaign's clock with one reference at the start vs a reference every 40 geometries)."""
+    for m in materials:
+        ideal = run_cornell_campaign(m, plan=plan, seed=seed, effects=None)
+        print(f"{m}: ideal chi2/dof {ideal['chi2_dof']:.3g}", flush=True)
+        for name, (fx, off, on) in _SHIFTS.items():
+            for label, corr in (("uncorrected", off), ("corrected", on)):
+                every = 0 if name == "drift" and not corr.get("drift", True) else None
+                s = run_cornell_campaign(m, plan=plan, seed=seed, effects=fx, corrections=corr,
+                                         reference_every=every, budget=False)  # fmt: skip
+                print(f"  {name:16s} {label:11s} refused {s['n_refused_footprint']:3d}: "
+                      + _shift_row(s, ideal), flush=True)  # fmt: skip
+
+
+def ab(plan: str, material: str, rounds: int) -> None:
+    """Wall time of the default (realistic) vs the ideal campaign, A B A B in one run."""
+    t = {"realistic": [], "ideal": []}
+    for _ in range(rounds):
+        for label, fx in (("realistic", "cornell2005"), ("ideal", None)):
+            t0 = time.perf_counter()
+            run_cornell_campaign(material, plan=plan, seed=0, effects=fx)
+            t[label].append(time.perf_counter() - t0)
+    r, i = np.median(t["realistic"]), np.median(t["ideal"])
+    print(
+        f"{material} {plan}: realistic {r:.2f} s, ideal {i:.2f} s (medians of {rounds}), "
+        f"ratio {r / i:.2f}; all: {json.dumps({k: [round(x, 2) for x in v] for k, v in t.items()})}"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
-        "what", choices=("table", "stderr", "accuracy", "timing", "served", "degeneracy")
-    )
+        "what", choices=("table", "stderr", "accuracy", "timing", "served", "degeneracy",
+                         "budget", "shifts", "ab")
+    )  # fmt: skip
     ap.add_argument("--max-geometries", type=int, default=None)
     ap.add_argument("--theta-i", type=float, default=None, help="served: one incidence angle")
     ap.add_argument("--seeds", type=int, default=5, help="stderr: noisy campaigns per material")
@@ -271,6 +379,12 @@ def main() -> None:
     elif a.what == "served":
         served(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint",
                a.max_geometries, a.theta_i)  # fmt: skip
+    elif a.what == "budget":
+        budget_coverage(a.plan or "incidence", mats, a.seeds, a.seed)
+    elif a.what == "shifts":
+        shifts(a.plan or "incidence", mats, a.seed)
+    elif a.what == "ab":
+        ab(a.plan or "incidence", mats[0], a.seeds)
     elif a.what == "timing":
         timing(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint")
     else:

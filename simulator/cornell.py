@@ -77,6 +77,7 @@ from gonio.simulator.cornell_plans import (
     order_plan,
     read_plan_csv,
 )
+from gonio.simulator.cornell_true import TrueInstrument
 from gonio.simulator.spectra import detector_response, halogen_spectrum, spectralon_reflectance
 from numpy.typing import ArrayLike, NDArray
 
@@ -165,8 +166,18 @@ class CornellConfig:
     quad_phi: int = 8
     skip_tol: float = 0.0  # convolution shortcut tolerance; 0 = off (module docstring: why)
     n_reference_reads: int = 16  # reads averaged for the reference (its noise is common to all)
+    #: realised effect magnitudes of the true instrument (gonio.simulator.cornell_effects;
+    #: None or all zero = the ideal instrument). The reduction uses :meth:`lab_view`.
+    effects: Mapping[str, float] | None = None
+    instrument_seed: int = 0  # draws of the realised instrument (tilt azimuths, stage noise)
 
     def __post_init__(self) -> None:
+        if self.effects is not None:
+            from gonio.simulator.cornell_effects import resolve_effects
+
+            object.__setattr__(self, "effects", resolve_effects(dict(self.effects), 0))
+        if not isinstance(self.instrument_seed, int | np.integer) or self.instrument_seed < 0:
+            raise ValueError(f"instrument_seed = {self.instrument_seed!r}: expected an int >= 0")
         for name in (
             "source_solid_angle",
             "detector_solid_angle",
@@ -185,6 +196,10 @@ class CornellConfig:
             raise ValueError(f"n_pixels = {self.n_pixels!r}: expected an integer >= 64")
         if self.skip_tol < 0:
             raise ValueError(f"skip_tol = {self.skip_tol!r}: expected >= 0")
+
+    def lab_view(self) -> CornellConfig:
+        """What the laboratory knows: this configuration without the true effects."""
+        return self if self.effects is None else replace(self, effects=None)
 
     @property
     def omega_nominal(self) -> float:
@@ -344,10 +359,15 @@ def measure_raw(
     through ``first``, then :func:`read_sequence`; each dark and signal spectrum is the mean
     of ``n_reads`` reads."""
     t, filt = auto_exposure(read, config, target, first)
-    reads: dict[tuple[str, bool], list] = {}
-    for q, shutter in read_sequence(first):
-        kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
-        reads[(q, shutter)] = [read(t, **kw) for _ in range(n_reads)]
+    for _ in range(7):  # a saturated signal read (a polarising sample) is read again shorter
+        reads: dict[tuple[str, bool], list] = {}
+        for q, shutter in read_sequence(first):
+            kw = dict(polarizer=q, target=target, filter_in=filt, shutter=shutter)
+            reads[(q, shutter)] = [read(t, **kw) for _ in range(n_reads)]
+        sat = any(np.max(r) >= config.saturation_counts for q in "sp" for r in reads[(q, True)])
+        if not sat or t <= config.t_min:
+            break
+        t = max(config.t_min, round(0.3 * t, 6))
     return {
         q: {
             "signal": np.mean(reads[(q, True)], axis=0),
@@ -381,6 +401,15 @@ class Reference:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
+def remove_uniform_stray(rate: NDArray, fraction: float) -> NDArray:
+    """Invert a uniform stray-light distribution: ``m = r + s mean(r)`` gives
+    ``r = m - s mean(m) / (1 + s)`` (``rate`` per pixel, ``fraction`` = s >= 0)."""
+    if not (fraction >= 0 and math.isfinite(fraction)):
+        raise ValueError(f"stray_correction = {fraction!r}: expected a finite number >= 0")
+    m = np.asarray(rate, float)
+    return m - fraction * float(np.mean(m)) / (1.0 + fraction)
+
+
 def _net_rate(signal, dark, t, transmission, config):
     net = (np.asarray(signal, float) - np.asarray(dark, float)) / (t * transmission)
     var = (
@@ -397,6 +426,7 @@ def reduce_measurement(
     cos_theta_i: float,
     config: CornellConfig | None = None,
     bands_nm: ArrayLike = BANDS_NM,
+    stray_correction: float = 0.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], bool]:
     """Raw spectra of one geometry → ``(BRDF per band, standard error per band, saturated)``.
 
@@ -405,6 +435,18 @@ def reduce_measurement(
     ``reads[q]`` for ``q`` in ``("s", "p")`` holds ``signal`` and ``dark`` (counts per pixel),
     ``t`` (integration time, s) and ``filter`` (0 or 1). Pure function: the campaign runner
     that goes through the drivers calls it with the spectra it read.
+
+    ``stray_correction`` = s > 0: the laboratory's in-spectrometer stray-light fraction (a
+    uniform stray-light distribution, each pixel reading s x the mean signal), removed from
+    the sample's and the reference's net rates by :func:`remove_uniform_stray` (the exact
+    inverse of that distribution: Zong et al. 2006's correction matrix for a uniform
+    distribution).
+
+    References
+    ----------
+    Zong, Y., Brown, S. W., Johnson, B. C., Lykke, K. R., Ohno, Y. (2006). Simple spectral
+    stray light correction method for array spectroradiometers. Applied Optics 45(6),
+    1111-1119, doi:10.1364/AO.45.001111.
     """
     config = config or CornellConfig()
     if cos_theta_i <= 0:
@@ -419,7 +461,11 @@ def reduce_measurement(
         saturated |= bool(np.any(np.asarray(r["signal"]) >= config.saturation_counts))
         net, var = _net_rate(r["signal"], r["dark"], float(r["t"]), tr, config)
         net = net - reference.stray[q]
-        k = reference.scale / reference.rate[q] / cos_theta_i
+        ref_rate = reference.rate[q]
+        if stray_correction:
+            net = remove_uniform_stray(net, stray_correction)
+            ref_rate = remove_uniform_stray(ref_rate, stray_correction)
+        k = reference.scale / ref_rate / cos_theta_i
         fs.append(net * k)
         vs.append(var * k * k)
     f = 0.5 * (fs[0] + fs[1])
@@ -445,7 +491,7 @@ def _seed_from(rng: int | np.random.Generator | None) -> int:
     raise ValueError(f"rng = {rng!r}: expected a non-negative int, a Generator or None")
 
 
-class CornellInstrument:
+class CornellInstrument(TrueInstrument):
     """The simulated instrument: a sample BRDF, the physics config and a seeded noise source.
 
     Parameters
@@ -489,6 +535,9 @@ class CornellInstrument:
         self._alpha_s, self._alpha_d = _alpha(c.source_solid_angle), _alpha(c.detector_solid_angle)
         self._rule_s = _cone_rule(self._alpha_s, c.quad_rings, c.quad_phi)
         self._rule_d = _cone_rule(self._alpha_d, c.quad_rings, c.quad_phi)
+        self.fx = c.effects  # None: the ideal instrument (every effect path skipped)
+        if self.fx is not None:
+            self._fx_setup()
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -507,6 +556,8 @@ class CornellInstrument:
             raise ValueError(f"angles = {angles!r}: expected 3 finite angles (radians)")
         if not self.config.kinematics.within_limits(a):
             raise ValueError(f"angles = {np.degrees(a).tolist()} deg are outside the stage limits")
+        if self.fx is not None:
+            self._fx_move(a)  # backlash and positioning noise: the true (load) angles
         self.angles = a.copy()
 
     # ------------------------------------------------------------------ radiometry
@@ -584,8 +635,11 @@ class CornellInstrument:
     def prime(self, angles: ArrayLike) -> None:
         """Precompute (vectorised) the cone-averaged BRDF at many poses before reading them."""
         a = np.atleast_2d(np.asarray(angles, dtype=np.float64))
-        vals = self.expected_brdf(a)
-        ci = effective_cos(forward(a, self.config.kinematics)[0], self.config)
+        if self.fx is not None:
+            vals, ci = self._fx_expected(a)
+        else:
+            vals = self.expected_brdf(a)
+            ci = effective_cos(forward(a, self.config.kinematics)[0], self.config)
         if len(self._conv_cache) > 200_000:
             self._conv_cache.clear()
         for ang, v, c in zip(a, vals, ci):
@@ -634,11 +688,13 @@ class CornellInstrument:
         filt = float(positions.get("filter", 0.0)) >= 0.5
         if target not in TARGETS.values():
             raise ValueError(f"target = {target!r}: expected one of {TARGETS}")
+        blocked = abs(_wrap_deg(float(positions["arm"]))) < math.degrees(c.kinematics.retro_cone)
+        if self.fx is not None:
+            return self._fx_counts(positions, t, wl, target, q, shutter, filt, blocked)
         counts = np.full(wl.shape, c.bias_counts + c.dark_rate * t)
         if not shutter:
             return counts
         k = self._spectral_k(wl, q)
-        blocked = abs(_wrap_deg(float(positions["arm"]))) < math.degrees(c.kinematics.retro_cone)
         if blocked and target in (TARGETS["sample"], TARGETS["standard"]):
             sig = np.zeros(wl.shape)  # the arm sits between the sample and the folding mirror
         elif target == TARGETS["sample"]:
@@ -694,6 +750,11 @@ class CornellInstrument:
             mean = np.rint(mean)  # the ADC (part of the noise: noise=False is an ideal detector)
         return np.clip(mean, 0.0, c.saturation_counts)
 
+    def _pos(self) -> dict[str, float]:
+        """Where the stages really are, in degrees, with the sample in view."""
+        a = self.angles if self.fx is None else self.true_angles
+        return {k: float(np.degrees(v)) for k, v in zip(AXES, a)}
+
     def read(
         self,
         integration_time_s: float,
@@ -709,7 +770,10 @@ class CornellInstrument:
             raise ValueError(f"target = {target!r}: expected one of {sorted(TARGETS)}")
         if polarizer is not None and polarizer not in _POL:
             raise ValueError(f"polarizer = {polarizer!r}: expected 's', 'p' or None")
-        a = self.angles if angles is None else np.asarray(angles, float)
+        if angles is not None:
+            a = np.asarray(angles, float)
+        else:  # where the stages really are (backlash, positioning noise)
+            a = self.angles if self.fx is None else self.true_angles
         pos = {k: float(np.degrees(v)) for k, v in zip(AXES, a)}
         pos.update(shutter=float(shutter), target=float(TARGETS[target]), filter=float(filter_in))
         if polarizer is not None:
@@ -740,12 +804,14 @@ class CornellInstrument:
         """
         return measure_raw(self.read, self.config, target, n_reads, first)
 
-    def calibrate(self, mode: str = "standard") -> Reference:
+    def calibrate(self, mode: str = "standard", stray: Reference | None = None) -> Reference:
         """Reference measurement: the standard at the reference pose or the direct beam, plus
-        the beam trap for stray light."""
-        c = self.config
+        the beam trap for stray light (taken from ``stray`` instead when given: a
+        re-measured reference during a campaign does not repeat the beam trap)."""
+        c = self.config.lab_view()  # what the laboratory computes with
         wl = self.pixel_wavelengths
         saved = self.angles.copy()
+        fx_state = self._fx_state() if self.fx is not None else None
         if mode == "standard":
             self.move_to(c.reference_angles())
             target = "standard"
@@ -761,17 +827,22 @@ class CornellInstrument:
         raws = self.measure_raw(target, n_reads=n_avg, first="s")  # ends on "p"
         # stray light: beam trap at t_max, averaged like the reference (ends on "s", open)
         traps: dict[tuple[str, bool], NDArray] = {}
-        for q, shutter in read_sequence("p"):
+        for q, shutter in read_sequence("p") if stray is None else ():
             kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
             traps[(q, shutter)] = np.mean([self.read(c.t_max, **kw) for _ in range(n_avg)], 0)
-        stray, rate = {}, {}
+        stray_rate, rate = {}, {}
         for q in ("s", "p"):
-            stray[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
+            if stray is None:
+                stray_rate[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
+            else:
+                stray_rate[q] = stray.stray[q]
             r = raws[q]
             tr = c.filter_transmission if r["filter"] else 1.0
-            rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
+            rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray_rate[q]
         self.angles = saved
-        return Reference(mode, wl, rate, stray, scale, {"t": raws["s"]["t"]})
+        if fx_state is not None:
+            self._fx_restore(fx_state)  # back where the stages were before the reference
+        return Reference(mode, wl, rate, stray_rate, scale, {"t": raws["s"]["t"]})
 
 
 def _wrap_deg(a: float) -> float:
@@ -801,36 +872,69 @@ def simulate_campaign(
     config: CornellConfig | None = None,
     order: bool = True,
     timing: Timing | None = None,
+    reference_every: int = 0,
+    drift_correction: bool = True,
+    stray_correction: float = 0.0,
 ) -> BRDFSamples:
     """Measure ``sample`` along ``plan`` (``"hemispherical"``, ``"incidence_plane"`` or a Plan).
 
     Returns a spectral :class:`~gonio.samples.BRDFSamples` (one row per reachable geometry and
-    band, ``wavelength_nm`` column; directions are the reached ones, from the motor angles).
+    band, ``wavelength_nm`` column; directions are the commanded ones, from the motor angles).
     ``metadata`` records the instrument, the reference, the number of cone integrations skipped,
     the integration times and the estimated real-instrument run time.
+
+    ``config`` is the true instrument (its ``effects``); the reduction uses its
+    :meth:`CornellConfig.lab_view`. ``reference_every = N > 0`` re-measures the standard
+    after every N geometries and at the end (the beam trap only once); with
+    ``drift_correction`` each geometry is reduced against the reference interpolated
+    linearly in campaign time between the two that bracket it (the lamp's drift and
+    warm-up divided out), else against the first. ``stray_correction``: the laboratory's
+    in-spectrometer stray-light fraction, removed by :func:`reduce_measurement`.
     """
     if isinstance(plan, str):
         makers = {"hemispherical": hemispherical_plan, "incidence_plane": incidence_plane_plan}
         if plan not in makers:
             raise ValueError(f"plan = {plan!r}: expected one of {sorted(makers)} or a Plan")
         plan = makers[plan](kin=(config or CornellConfig()).kinematics)
+    if int(reference_every) != reference_every or reference_every < 0:
+        raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")
     inst = CornellInstrument(sample, config=config, noise=noise, rng=rng)
+    lab = inst.config.lab_view()
     ref = inst.calibrate(reference)
     p = order_plan(plan, timing) if order else plan.measurable()
-    inst.prime(p.angles)
+    inst.prime(p.angles if inst.fx is None else inst.true_angles_of(p.angles))
     wl_bands = BANDS_NM
     nb = len(wl_bands)
     vals = np.empty((len(p), nb))
     sigs = np.empty((len(p), nb))
     t_int = np.empty(len(p))
     n_sat = 0
-    wi, wo = forward(p.angles, inst.config.kinematics)
-    ce = effective_cos(wi, inst.config)
+    wi, wo = forward(p.angles, lab.kinematics)
+    ce = effective_cos(wi, lab)
+    tm = timing or Timing()
+    refs = [(0.0, ref)]
+    pending: list[tuple[int, float, dict]] = []
+    prev = np.zeros(3)
     for j, ang in enumerate(p.angles):
         inst.move_to(ang)
         raws = inst.measure_raw("sample", first=first_polarizer(j))
-        v, s, sat = reduce_measurement(raws, ref, float(ce[j]), inst.config, wl_bands)
-        vals[j], sigs[j], t_int[j] = v, s, raws["s"]["t"]
+        t_int[j] = raws["s"]["t"]
+        if inst.fx is not None or reference_every:
+            inst.advance_clock(_geometry_seconds(tm, ang - prev, t_int[j]))
+            prev = ang
+        if reference_every and drift_correction:
+            pending.append((j, inst.clock_s, raws))
+        else:
+            v, s, sat = reduce_measurement(raws, ref, float(ce[j]), lab, wl_bands, stray_correction)
+            vals[j], sigs[j] = v, s
+            n_sat += int(sat)
+        if reference_every and ((j + 1) % reference_every == 0 or j + 1 == len(p)):
+            inst.advance_clock(_reference_seconds(tm, lab, ref))
+            refs.append((inst.clock_s, inst.calibrate(reference, stray=ref)))
+    for j, tj, raws in pending:
+        rj = _interpolated_reference(refs, tj)
+        v, s, sat = reduce_measurement(raws, rj, float(ce[j]), lab, wl_bands, stray_correction)
+        vals[j], sigs[j] = v, s
         n_sat += int(sat)
     if not noise:
         sigs[:] = np.nan  # no noise: standard errors unknown (not zero), as gonio.fit expects
@@ -849,6 +953,11 @@ def simulate_campaign(
         "integration_s_median": float(np.median(t_int)) if len(p) else 0.0,
         "estimated_run_time_h": est["total_h"],
     }  # (no wall-clock time: the samples of two identical runs are identical bytes)
+    if reference_every:
+        meta["n_references"] = len(refs)
+        meta["reference_drift"] = _reference_drift(refs)
+    if inst.fx is not None or reference_every:
+        meta["campaign_clock_h"] = inst.clock_s / 3600.0
     rep = np.repeat
     return BRDFSamples.from_directions(
         rep(wi, nb, axis=0),
@@ -858,6 +967,37 @@ def simulate_campaign(
         wavelength_nm=np.tile(wl_bands, len(p)),
         metadata=meta,
     )
+
+
+def _geometry_seconds(tm: Timing, delta: NDArray, t: float) -> float:
+    """Real-instrument time of one geometry (the run-time estimate's schedule)."""
+    per = tm.settle_s + tm.preview_s + tm.read_overhead_s + tm.polarizer_change_s
+    return float(tm.move_time(delta[None])[0] + per + 4.0 * (t + tm.read_overhead_s))
+
+
+def _reference_seconds(tm: Timing, c: CornellConfig, ref: Reference) -> float:
+    """Real-instrument time of a re-measured standard: two moves of up to 90 deg on every
+    axis and ``n_reference_reads`` sets of four reads."""
+    move = float(tm.move_time(np.radians([[90.0, 90.0, 90.0]]))[0])
+    t = float(ref.meta.get("t", 1.0))
+    return 2 * move + max(1, int(c.n_reference_reads)) * 4 * (t + tm.read_overhead_s)
+
+
+def _interpolated_reference(refs: list[tuple[float, Reference]], t: float) -> Reference:
+    """The reference rates interpolated linearly in time between the two references around
+    ``t`` (clamped at the ends)."""
+    times = np.array([r[0] for r in refs])
+    k = int(np.clip(np.searchsorted(times, t) - 1, 0, len(refs) - 2))
+    (ta, ra), (tb, rb) = refs[k], refs[k + 1]
+    w = float(np.clip((t - ta) / (tb - ta), 0.0, 1.0)) if tb > ta else 0.0
+    rate = {q: (1 - w) * ra.rate[q] + w * rb.rate[q] for q in ra.rate}
+    return replace(ra, rate=rate)
+
+
+def _reference_drift(refs: list[tuple[float, Reference]]) -> list[list[float]]:
+    """(hours, mean rate / first mean rate) of each reference measurement."""
+    r0 = float(np.mean(refs[0][1].rate["s"] + refs[0][1].rate["p"]))
+    return [[t / 3600.0, float(np.mean(r.rate["s"] + r.rate["p"])) / r0] for t, r in refs]
 
 
 def accuracy_check(

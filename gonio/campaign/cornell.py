@@ -228,50 +228,14 @@ def _mirror_full_mask(samples: BRDFSamples, config: Any) -> np.ndarray:
 
 
 def cone_response(model: Any, wi: np.ndarray, wo: np.ndarray, config: Any) -> np.ndarray:
-    """What the instrument reads for ``model`` at directions ``wi``, ``wo`` (G, 3): the model
-    averaged over the source and detector cones (the instrument's own quadrature rule), its
-    mirror part through the cones' overlap — the known response of the instrument, the same
-    computation as ``CornellInstrument.expected_brdf`` (convolve=True) but from directions.
+    """What the laboratory expects the instrument to read for ``model`` at ``wi``, ``wo``
+    (G, 3): :func:`gonio.campaign.cornell_lab.cone_response` (nominal top-hat cones, the
+    laboratory's own quadrature; the simulator's rule and true cones are not used).
     Returns (G, n_bands).
     """
-    from gonio.simulator.cornell import (
-        _alpha,
-        _cone_points,
-        _cone_rule,
-        _lens_area,
-        effective_cos,
-    )
+    from gonio.campaign.cornell_lab import cone_response as lab_cone_response
 
-    c = config
-    a_s, a_d = _alpha(c.source_solid_angle), _alpha(c.detector_solid_angle)
-    rs, ps, ws = _cone_rule(a_s, c.quad_rings, c.quad_phi)
-    rd, pd, wd = _cone_rule(a_d, c.quad_rings, c.quad_phi)
-    pure = model
-    if model.params.get("d_omega_i") is not None:
-        pure = type(model)(**{**model.params, "d_omega_i": None})
-    wi = np.asarray(wi, float).reshape(-1, 3)
-    wo = np.asarray(wo, float).reshape(-1, 3)
-    ce = effective_cos(wi, c)  # what the reduction divides by
-    ci = np.where(ce > 0, ce, 1.0)
-    nb = len(np.atleast_1d(model.wavelengths_nm)) if model.wavelengths_nm is not None else 1
-    out = np.zeros((len(wi), nb))
-    for chunk in np.array_split(np.arange(len(wi)), max(1, len(wi) // 128)):
-        if chunk.size == 0:
-            continue
-        pi = _cone_points(wi[chunk], rs, ps)
-        po = _cone_points(wo[chunk], rd, pd)
-        f = pure.evaluate_unchecked(pi[:, :, None, :], po[:, None, :, :])
-        f = f.reshape(f.shape[:3] + (nb,))
-        wgt = ws[:, None] * wd[None, :] * np.clip(pi[:, :, 2], 0, None)[:, :, None]
-        out[chunk] = np.einsum("mijb,mij->mb", f, wgt) / ci[chunk, None]
-    if pure.has_delta:
-        d, rho = pure.delta(wi)
-        rho = np.asarray(rho, float).reshape(len(wi), -1)
-        if np.any(rho > 0):
-            beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
-            w = _lens_area(beta, a_s, a_d) / (math.pi * a_d**2 * c.source_solid_angle) / ci
-            out = out + rho * w[:, None]
-    return out
+    return lab_cone_response(model, wi, wo, config)
 
 
 def _stray_variance(stray: np.ndarray, c: Any, n: int) -> np.ndarray:
@@ -590,6 +554,11 @@ def run_cornell_campaign(
     cone_corrections: int = 2,
     device_timeout: float = 2.0,
     fit_linear: bool = True,
+    effects: Any = "cornell2005",
+    instrument_seed: int | None = None,
+    reference_every: int | None = None,
+    corrections: dict[str, Any] | None = None,
+    budget: bool = True,
 ) -> dict[str, Any]:
     """Run a Cornell campaign end to end; the summary dict (also ``out/summary.json``).
 
@@ -634,6 +603,22 @@ def run_cornell_campaign(
         Checkpoint write interval (records; also every 2 s).
     prime : bool
         Let the fake bench's simulator precompute the plan's poses (speed only).
+    effects : str, mapping or None
+        The true instrument: a preset of :mod:`gonio.simulator.cornell_effects`
+        (``"cornell2005"``, the default realistic instrument, or ``"ideal"``), realised with
+        ``instrument_seed`` (default ``seed``), or a mapping of magnitudes, or None (ideal).
+    reference_every : int, optional
+        Re-measure the standard after every N geometries (default 40 for a non-ideal
+        instrument, 0 = once at the start). In-process only.
+    corrections : dict, optional
+        The laboratory's corrections, each ablatable (:data:`DEFAULT_CORRECTIONS`):
+        ``footprint`` ``"refuse"`` (the plan drops geometries whose field of view leaves
+        the lit spot or the sample; the count is reported), ``"divide"`` (divide by the
+        nominal lit fraction) or ``"none"``; ``drift`` (reduce against the references
+        interpolated in time), ``stray`` (remove the data sheet's uniform stray light),
+        ``slit`` (second-order slit deconvolution) True/False.
+    budget : bool
+        The uncertainty budget (:mod:`gonio.campaign.cornell_budget`) in the summary.
     on_measurement : callable(j, n), optional
         Called after each geometry through drivers (progress, fault injection in tests).
     """
@@ -643,7 +628,9 @@ def run_cornell_campaign(
         setup = _prepare(
             material, plan, noise=noise, seed=seed, out=out, reference=reference,
             config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
-            plan_kw=plan_kw, through_drivers=through_drivers,
+            plan_kw=plan_kw, through_drivers=through_drivers, effects=effects,
+            instrument_seed=instrument_seed, reference_every=reference_every,
+            corrections=corrections,
         )  # fmt: skip
         t_plan = time.perf_counter() - t0
         try:
@@ -652,7 +639,7 @@ def run_cornell_campaign(
                 time_scale=time_scale, faults=faults, checkpoint_every=checkpoint_every,
                 prime=prime, on_measurement=on_measurement, device_timeout=device_timeout, fit=fit,
                 fit_mode=fit_mode, residual=residual, cone_corrections=cone_corrections,
-                fit_linear=fit_linear, quiet=quiet,
+                fit_linear=fit_linear, quiet=quiet, budget=budget,
             )  # fmt: skip
         except BaseException:
             if setup.out is not None:  # no derived output of a failed run
@@ -664,8 +651,9 @@ def _stages(
     setup: _Setup, t_plan: float, *, through_drivers: bool, resume: bool, time_scale: float,
     faults: Any, checkpoint_every: int, prime: Any, on_measurement: Any, device_timeout: Any,
     fit: bool, fit_mode: str, residual: str, cone_corrections: Any, fit_linear: Any, quiet: bool,
+    budget: bool,
 ) -> dict[str, Any]:  # fmt: skip
-    """Stages 2-4 of :func:`run_cornell_campaign` (measure, fit, report)."""
+    """Stages 2-4 of :func:`run_cornell_campaign` (measure, correct, fit, report)."""
     material = setup.material
     with CampaignExecutor(1) as ex, ex.blas():  # BLAS on one thread, stage timings
         ex.timings["plan"] = t_plan
@@ -684,6 +672,9 @@ def _stages(
             else:
                 samples, ref_obj, t_int, extra = _measure_in_process(setup)
         extra.update(_run_time_estimate(setup.plan, samples, t_int))
+        if setup.fx is not None:
+            with ex.stage("correct"):
+                samples = _apply_corrections(setup, samples, ref_obj, extra)
         if setup.out is not None:
             with ex.stage("save_samples"):
                 samples.write(setup.out / "samples.csv")
@@ -695,13 +686,15 @@ def _stages(
                       flush=True)  # fmt: skip
             with ex.stage("fit"):
                 res_fit, info = fit_li_torrance(
-                    samples, material, fit_mode=fit_mode, residual=residual, config=setup.cfg,
+                    samples, material, fit_mode=fit_mode, residual=residual, config=setup.lab,
                     cone_corrections=cone_corrections, linear=fit_linear,
                 )  # fmt: skip
         ex.timings["total"] = ex.elapsed()
         # 4. report
         if fit:
-            summary = _report(setup, res_fit, info, samples, ref_obj, ex.timings, extra)
+            with ex.stage("report"):
+                summary = _report(setup, res_fit, info, samples, ref_obj, ex.timings, extra,
+                                  budget=budget)  # fmt: skip
         else:
             summary = {
                 "material": material, "model": None, "n_samples": len(samples),
@@ -727,6 +720,11 @@ class _Setup:
     reference: str
     out: Path | None
     settings: dict[str, Any]
+    lab: Any = None  # what the laboratory knows (cfg without the true effects)
+    fx: dict[str, float] | None = None  # the realised true effects (simulator side only)
+    knowledge: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    corrections: dict[str, Any] = dataclasses.field(default_factory=dict)
+    reference_every: int = 0
 
     @property
     def meta(self) -> dict[str, Any]:
@@ -738,12 +736,16 @@ class _Setup:
 def _prepare(
     material: str, plan: Any, *, noise: Any, seed: Any, out: Any, reference: str, config: Any,
     resolution_deg: float, max_geometries: int | None, plan_kw: dict | None,
-    through_drivers: bool,
+    through_drivers: bool, effects: Any = None, instrument_seed: int | None = None,
+    reference_every: int | None = None, corrections: dict | None = None,
 ) -> _Setup:  # fmt: skip
-    """Check the inputs, build the ordered plan and write ``plan.json``."""
+    """Check the inputs, realise the true instrument, build the ordered plan (refusing the
+    geometries whose field of view leaves the lit spot, when asked) and write
+    ``plan.json``."""
     from gonio import materials
     from gonio.campaign.drivers import eeprom_coeffs
     from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_effects import lab_knowledge, resolve_effects
 
     cfg = config or CornellConfig()
     # the spectrometer's calibration as its EEPROM stores it, on both paths
@@ -753,10 +755,27 @@ def _prepare(
     if reference not in ("standard", "direct"):
         raise ValueError(f"reference = {reference!r}: expected 'standard' or 'direct'")
     materials.info(material)  # unknown preset -> ValueError listing them
+    iseed = int(seed) if instrument_seed is None else instrument_seed
+    if not isinstance(iseed, int | np.integer) or iseed < 0:
+        raise ValueError(f"instrument_seed = {instrument_seed!r}: expected an integer >= 0")
+    fx = resolve_effects(effects, int(iseed))
+    cfg = dataclasses.replace(cfg, effects=fx, instrument_seed=int(iseed))
+    lab = cfg.lab_view()
+    knowledge = {}
+    if fx is not None:
+        knowledge = (lab_knowledge(effects) if isinstance(effects, str)
+                     else {k: (float(v), 0.0) for k, v in fx.items() if v})  # fmt: skip
+    corr = _check_corrections(corrections)
+    every = (40 if fx is not None else 0) if reference_every is None else reference_every
+    if int(every) != every or every < 0:
+        raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")
     p = build_plan(
-        plan, config=cfg, resolution_deg=resolution_deg, max_geometries=max_geometries,
+        plan, config=lab, resolution_deg=resolution_deg, max_geometries=max_geometries,
         **(plan_kw or {}),
     )  # fmt: skip
+    n_refused = 0
+    if fx is not None and corr["footprint"] == "refuse":
+        p, n_refused = _refuse_footprint(p, lab, knowledge)
     outp = Path(out) if out is not None else None
     settings = {
         "material": material,
@@ -769,12 +788,93 @@ def _prepare(
         "resolution_deg": resolution_deg,
         "max_geometries": max_geometries,
         "through_drivers": bool(through_drivers),
+        "effects": effects if isinstance(effects, str | None) else dict(effects),
+        "instrument_seed": int(iseed),
+        "reference_every": int(every),
+        "corrections": corr,
+        "n_refused_footprint": int(n_refused),
     }
     if outp is not None:
         outp.mkdir(parents=True, exist_ok=True)
         results.discard_outputs(outp)  # an earlier run's outputs and unfinished writes
         _write_json(outp / "plan.json", settings)
-    return _Setup(material, p, cfg, bool(noise), int(seed), reference, outp, settings)
+    return _Setup(material, p, cfg, bool(noise), int(seed), reference, outp, settings, lab, fx,
+                  knowledge, corr, int(every))  # fmt: skip
+
+
+#: the laboratory's corrections a campaign applies by default (each ablatable)
+DEFAULT_CORRECTIONS: dict[str, Any] = {"footprint": "refuse", "drift": True, "stray": True,
+                                       "slit": True}  # fmt: skip
+
+
+def _check_corrections(corrections: dict | None) -> dict[str, Any]:
+    corr = {**DEFAULT_CORRECTIONS, **(corrections or {})}
+    unknown = set(corr) - set(DEFAULT_CORRECTIONS)
+    if unknown:
+        raise ValueError(
+            f"corrections {sorted(unknown)} unknown; expected {list(DEFAULT_CORRECTIONS)}"
+        )
+    if corr["footprint"] not in ("refuse", "divide", "none"):
+        raise ValueError(
+            f"corrections footprint = {corr['footprint']!r}: expected 'refuse', 'divide' or 'none'"
+        )
+    for k in ("drift", "stray", "slit"):
+        corr[k] = bool(corr[k])
+    return corr
+
+
+def _nominal(knowledge: dict[str, tuple[float, float]], name: str) -> float:
+    return float(knowledge.get(name, (0.0, 0.0))[0])
+
+
+def _refuse_footprint(p: Any, lab: Any, knowledge: dict) -> tuple[Any, int]:
+    """The plan without the geometries whose (nominal) field of view leaves the lit spot or
+    the sample, with a margin of twice the sizes' relative uncertainty (at least 5 %)."""
+    from gonio.campaign.cornell_lab import footprint_refused
+    from gonio.simulator.cornell import forward
+
+    beam, fov = _nominal(knowledge, "beam_diameter_mm"), _nominal(knowledge, "fov_diameter_mm")
+    size = _nominal(knowledge, "sample_size_mm")
+    if fov <= 0:
+        return p, 0
+    rel = [knowledge.get(k, (1.0, 0.0))[1] / max(knowledge.get(k, (1.0, 0.0))[0], 1e-12)
+           for k in ("beam_diameter_mm", "fov_diameter_mm")]  # fmt: skip
+    margin = max(0.05, 2.0 * math.hypot(*rel))
+    wi, wo = forward(p.angles, lab.kinematics)
+    bad = footprint_refused(wi, wo, beam, fov, size, margin)
+    if not bad.any():
+        return p, 0
+    q = p.subset(np.flatnonzero(~bad))
+    q.meta = {**p.meta, "n_geometries": len(q), "n_refused_footprint": int(bad.sum())}
+    return q, int(bad.sum())
+
+
+def _apply_corrections(
+    setup: _Setup, samples: BRDFSamples, ref_obj: Any, extra: dict
+) -> BRDFSamples:
+    """The laboratory's corrections of the reduced samples: the nominal footprint fraction
+    (``footprint="divide"``) and the slit function's second-order bias (``slit``)."""
+    from gonio.campaign.cornell_lab import footprint_fraction, slit_correction
+    from gonio.simulator.cornell import BANDS_NM, _hat_projector
+
+    kn, corr = setup.knowledge, setup.corrections
+    vals = samples.value.reshape(-1, len(BANDS_NM)).copy()
+    sig = samples.sigma.reshape(vals.shape).copy() if samples.has_sigma else None
+    if corr["footprint"] == "divide" and _nominal(kn, "fov_diameter_mm") > 0:
+        sizes = [_nominal(kn, k) for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")]
+        nb = len(BANDS_NM)
+        frac = footprint_fraction(samples.wi[::nb], samples.wo[::nb], *sizes)
+        keep = frac > 0.05
+        extra["n_footprint_divided"] = int(np.sum(frac < 1.0))
+        vals[keep] /= frac[keep, None]
+        if sig is not None:
+            sig[keep] /= frac[keep, None]
+    if corr["slit"] and _nominal(kn, "slit_fwhm_nm") > 0:
+        use, proj = _hat_projector(tuple(np.round(ref_obj.wavelengths_nm, 9)), tuple(BANDS_NM))
+        k_band = proj @ (0.5 * (ref_obj.rate["s"] + ref_obj.rate["p"]) / ref_obj.scale)[use]
+        vals = slit_correction(vals, k_band, _nominal(kn, "slit_fwhm_nm"))
+    return dataclasses.replace(samples, value=vals.reshape(-1),
+                               sigma=samples.sigma if sig is None else sig.reshape(-1))  # fmt: skip
 
 
 def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str, Any]]:
@@ -782,9 +882,14 @@ def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str
     times (they are estimated), extra summary fields."""
     from gonio.simulator.cornell import CornellInstrument, simulate_campaign
 
+    stray = (
+        _nominal(setup.knowledge, "stray_light_fraction") if setup.corrections.get("stray") else 0.0
+    )
     samples = simulate_campaign(
         setup.plan, setup.material, rng=setup.seed, noise=setup.noise,
         reference=setup.reference, config=setup.cfg, order=False,
+        reference_every=setup.reference_every,
+        drift_correction=bool(setup.corrections.get("drift", True)), stray_correction=stray,
     )  # fmt: skip
     samples.metadata.update(setup.meta)
     # the same keyed noise: a fresh instrument calibrates to the very same reference
@@ -792,6 +897,9 @@ def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str
                                 rng=setup.seed).calibrate(setup.reference)  # fmt: skip
     extra = {"through_drivers": False, "n_geometries": len(setup.plan),
              "n_saturated": int(samples.metadata.get("n_saturated", 0))}  # fmt: skip
+    for k in ("n_references", "reference_drift", "campaign_clock_h"):
+        if k in samples.metadata:
+            extra[k] = samples.metadata[k]
     return samples, ref_obj, None, extra
 
 
@@ -826,7 +934,7 @@ def _measure_through_drivers(
         device_timeout=device_timeout,
     ) as (rig, _parts):  # fmt: skip
         res = run_cornell_measurements(
-            rig, np.degrees(p.angles), config=setup.cfg, reference=setup.reference,
+            rig, np.degrees(p.angles), config=setup.lab, reference=setup.reference,
             checkpoint=ck, reference_path=(outp / "reference.npz") if outp is not None else None,
             on_measurement=on_measurement,
         )  # fmt: skip
@@ -834,7 +942,7 @@ def _measure_through_drivers(
         extra["device_moves"] = rig.n_moves
     sig = res["sigma"] if setup.noise else np.full_like(res["sigma"], np.nan)
     samples = _samples_from(
-        np.radians(res["positions_deg"]), res["value"], sig, setup.cfg.kinematics, setup.meta
+        np.radians(res["positions_deg"]), res["value"], sig, setup.lab.kinematics, setup.meta
     )
     extra["resumed_geometries"] = int(res["resumed"])
     extra["n_saturated"] = int(res["saturated"].sum())
@@ -864,11 +972,11 @@ def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, An
 
 def _report(
     setup: _Setup, res_fit: Any, info: dict[str, Any], samples: BRDFSamples, ref_obj: Any,
-    timings: dict[str, float], extra: dict[str, Any],
+    timings: dict[str, float], extra: dict[str, Any], budget: bool = True,
 ) -> dict[str, Any]:  # fmt: skip
     """The summary of a fitted campaign (with the reference's and the stray-light offset's
-    error contributions when noise is on); writes ``fit.json``."""
-    cfg = setup.cfg
+    error contributions when noise is on, and the uncertainty budget); writes ``fit.json``."""
+    cfg = setup.lab
     ref_err = reference_band_error(ref_obj, cfg) if setup.noise else np.zeros(31)
     offset_err = None
     if setup.noise:  # the stray-light estimate's additive offset, through each k
@@ -881,6 +989,19 @@ def _report(
         setup.material, res_fit, info, samples, setup.seed, setup.noise, timings, extra,
         ref_err, offset_err,
     )  # fmt: skip
+    summary["effects"] = setup.settings["effects"]
+    summary["instrument_seed"] = setup.settings["instrument_seed"]
+    summary["corrections"] = setup.corrections
+    summary["n_refused_footprint"] = setup.settings["n_refused_footprint"]
+    if setup.fx is not None:
+        summary["true_effects"] = dict(setup.fx)  # the truth side of the comparison
+    if budget:
+        from gonio.campaign.cornell_budget import cornell_budget
+
+        summary["budget"] = cornell_budget(
+            res_fit, info, samples, ref_obj, cfg, setup.knowledge, setup.corrections,
+            summary, reference_every=setup.reference_every,
+        )  # fmt: skip
     if setup.out is not None:
         _write_json(setup.out / "fit.json", res_fit.to_dict())
     return summary
@@ -911,6 +1032,16 @@ def summary_text(summary: dict[str, Any]) -> str:
         lines.append(
             f"  fit_mode {summary['fit_mode']}, converged {summary['converged']},"
             f" rms {summary['rms']:.4g}"
+        )
+    if summary.get("budget"):
+        from gonio.campaign.cornell_budget import budget_text
+
+        lines.append(budget_text(summary["budget"]))
+    if summary.get("effects") is not None:
+        n_ref = summary.get("n_refused_footprint", 0)
+        lines.append(
+            f"  instrument {summary['effects']!s} (seed {summary.get('instrument_seed')}),"
+            f" {n_ref} geometries refused (footprint)"
         )
     lines.append(
         "  time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in summary["timings_s"].items())

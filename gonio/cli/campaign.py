@@ -83,9 +83,10 @@ def add_arguments(parser) -> None:
         "--instrument-preset",
         "--preset",
         dest="preset",
-        default="modern",
-        choices=["modern", "ward1992", "ideal"],
-        help="the LBL instrument's build and its imperfections (default modern; ideal = none)",
+        default=None,
+        choices=["modern", "ward1992", "cornell2005", "ideal"],
+        help="the instrument's build and its imperfections (default modern on lbl, "
+        "cornell2005 on cornell; ideal = none)",
     )
     parser.add_argument(
         "--instrument-seed",
@@ -177,6 +178,7 @@ _LBL_ONLY = {
     "--d-over-r": ("d_over_r", None),
     "--no-debias": ("no_debias", False),
     "--workers": ("workers", None),
+    "--binning": ("binning", None),
 }
 _CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
 
@@ -193,11 +195,27 @@ def _refuse_other_instrument(args) -> None:
         )
 
 
+_PRESETS = {"lbl": ("modern", "ward1992", "ideal"), "cornell": ("cornell2005", "ideal")}
+
+
+def _preset(args, instrument: str, default: str) -> str:
+    """The instrument preset of the command line, checked against the instrument."""
+    p = args.preset or default
+    if p not in _PRESETS[instrument]:
+        raise SystemExit(
+            f"error: --preset {p} is not a {instrument} preset; expected one of "
+            f"{', '.join(_PRESETS[instrument])}"
+        )
+    return p
+
+
 def _run_cornell(args) -> int:
     from gonio.campaign.cornell import run_cornell_campaign, summary_text
 
     s = run_cornell_campaign(
         args.material or "garnet_red_paint",
+        effects=_preset(args, "cornell", "cornell2005"),
+        instrument_seed=args.instrument_seed,
         plan=args.plan or "incidence",
         noise=parse_noise(args.noise) > 0,
         seed=args.seed,
@@ -231,7 +249,7 @@ def run(args) -> int:
         plots=not args.no_plots,
         d_over_r=args.d_over_r,
         debias=not args.no_debias,
-        preset=args.preset,
+        preset=_preset(args, "lbl", "modern"),
         instrument_seed=args.instrument_seed,
         binning=parse_binning(args.binning),
     )

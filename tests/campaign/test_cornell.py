@@ -16,7 +16,8 @@ SMALL = dict(plan="incidence", plan_kw={"theta_i_deg": (30.0,)}, max_geometries=
 
 @pytest.mark.parametrize("noise", [True, False])
 def test_drivers_give_the_same_samples_as_in_process(noise):
-    kw = dict(SMALL, seed=5, noise=noise, fit=False)
+    # the ideal instrument: the realistic one's stage errors and lamp clock live in-process
+    kw = dict(SMALL, seed=5, noise=noise, fit=False, effects=None)
     a = run_cornell_campaign("garnet_red_paint", **kw)
     b = run_cornell_campaign("garnet_red_paint", through_drivers=True, **kw)
     sa, sb = a["_samples"], b["_samples"]
@@ -117,20 +118,24 @@ def test_module_entry_point(tmp_path, capsys):
     assert "no_such_material" in capsys.readouterr().err
 
 
-def test_cone_response_is_what_the_instrument_reads():
+def test_cone_response_is_the_labs_own_model_not_the_simulators():
+    """The fit's cone model (nominal top hats, the laboratory's ring rule) agrees with what the
+    ideal simulated instrument reads to its quadrature accuracy, but is another computation
+    (no inverse crime): not equal to rounding error."""
     from gonio.simulator.cornell import CornellConfig
 
     from gonio import materials
     from gonio.campaign.cornell import cone_response
 
-    for m, tol in (("aluminized_non_glare_glass", 1e-12), ("garnet_red_paint", 2e-3)):
-        s = run_cornell_campaign(m, noise=False, fit=False, **SMALL)["_samples"]
+    for m, tol in (("aluminized_non_glare_glass", 2e-2), ("garnet_red_paint", 2e-3)):
+        s = run_cornell_campaign(m, noise=False, fit=False, effects=None, **SMALL)["_samples"]
         wi, wo = s.wi[::31], s.wo[::31]
         r = cone_response(materials.get(m), wi, wo, CornellConfig())
         v = s.value.reshape(-1, 31)
         big = r > 1e-3 * r.max()
-        # exact for the glass; within the simulator's adaptive-skip tolerance (1e-3) else
-        assert np.max(np.abs(v - r)[big] / r[big]) < tol
+        rel = np.abs(v - r)[big] / r[big]
+        assert rel.max() < tol
+        assert rel.max() > 1e-9
 
 
 def test_fit_recovers_the_constructed_model_from_point_values():
@@ -185,11 +190,15 @@ def test_default_cli_campaign_is_fast_and_accurate(tmp_path, capsys):
     assert rc == 0
     assert "garnet_red_paint (cornell" in capsys.readouterr().out
     js = json.loads(out.read_text())
-    assert js["n_geometries"] == 240 and js["n_samples"] == 240 * 31 and js["noise"]
+    # the realistic instrument by default: geometries whose field of view leaves the lit
+    # spot are refused, the rest fitted, the budget's U covers the truth
+    assert js["effects"] == "cornell2005" and js["n_refused_footprint"] > 0
+    assert js["n_geometries"] == 240 - js["n_refused_footprint"] and js["noise"]
+    assert js["n_samples"] == js["n_geometries"] * 31
     assert js["converged"] and js["fit_mode"] == "sigma_fixed"
-    assert js["relative_error"]["sigma/tau"] < 2e-4 and js["within_3_sigma"]["sigma/tau"]
-    ks = js["k_summary"]
-    assert ks["n"] == 93 and ks["max_relative_error"] < 0.01 and ks["n_within_3_sigma"] >= 90
+    assert js["relative_error"]["sigma/tau"] < 5e-3
+    cov = js["budget"]["coverage"]
+    assert cov["n"] == 95 and cov["n_within_U"] >= 0.9 * cov["n"]  # 93 k, tau, sigma/tau
     # was 73 s on a quiet machine (261 s loaded) with finite-difference Jacobians over 94
     # parameters; about 1 s now. Generous bound for a loaded machine.
     assert js["timings_s"]["fit"] < 30

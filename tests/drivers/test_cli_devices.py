@@ -98,7 +98,7 @@ def test_external_script_runs_a_cornell_campaign_on_the_served_bench(tmp_path):
     from gonio.campaign.drivers import CornellRig, open_served_rig, run_cornell_measurements
 
     kw = dict(plan="incidence", plan_kw={"theta_i_deg": (45.0,)}, max_geometries=6)
-    ref = run_cornell_campaign("laser_paper", seed=2, fit=False, **kw)["_samples"]
+    ref = run_cornell_campaign("laser_paper", seed=2, fit=False, effects=None, **kw)["_samples"]
     plan = build_plan(kw["plan"], max_geometries=6, **kw["plan_kw"])
     args = ("--instrument", "cornell", "--material", "laser_paper", "--seed", "2",
             "--time-scale", "10000")  # fmt: skip

@@ -1,0 +1,348 @@
+"""The uncertainty budget of a Cornell campaign, in the way of the GUM.
+
+For every fitted parameter: the statistical standard error of the fit, beside the
+contribution of each effect — its sensitivity times the standard uncertainty of the effect
+after the laboratory's correction — combined in quadrature (uncorrelated inputs) and
+expanded at k = 2 (JCGM 100:2008, §5.1.2, §6.2).
+
+Sensitivities are linearised (JCGM 100:2008 §5.1.3): the laboratory's own model of how an
+effect of unit size changes every reading (``δy``, from the fitted model and the reference —
+never from the simulator's truth) is propagated through the fit's linear response
+``δp = (Jᵀ W J)⁻¹ Jᵀ W δy`` with ``J`` the Jacobian of the fitted li_torrance model (the
+k's are its linear coefficients; σ, τ by central differences) and ``W`` the fit's weights.
+The uncertainty after correction: the effect's spread between instruments (what the data
+sheet or a characterisation leaves open) where the campaign corrects it; its whole
+magnitude where the correction is ablated.
+
+The output has the shape the LBL campaign's budget will have (per parameter ``stat``,
+``contributions``, ``combined``, ``U``); the two can share the propagation
+(:func:`propagate`) and the combination (:func:`combine`), which know nothing of the
+instrument.
+
+References
+----------
+JCGM 100:2008. Evaluation of measurement data - Guide to the expression of uncertainty in
+measurement (GUM). Joint Committee for Guides in Metrology. §5.1 (combined standard
+uncertainty), §6.2 (expanded uncertainty).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gonio.samples import BRDFSamples
+
+__all__ = ["combine", "cornell_budget", "propagate"]
+
+_K = ("k_dd", "k_udf", "k_uds", "k_fs")
+
+
+def propagate(jac: NDArray, weights: NDArray, patterns: NDArray) -> NDArray:
+    """Linear response of the fitted parameters to data perturbations: ``(P, E)`` for a
+    Jacobian ``(n, P)``, weights ``(n,)`` and perturbations ``(n, E)`` (weighted least
+    squares, JCGM 100:2008 §5.1.3 sensitivities)."""
+    jw = jac * weights[:, None]
+    return np.linalg.lstsq(jw, patterns * weights[:, None], rcond=None)[0]
+
+
+def combine(stat: float | None, contributions: dict[str, float], k: float = 2.0) -> dict[str, Any]:
+    """``stat`` and the contributions combined in quadrature; expanded at coverage ``k``."""
+    s = 0.0 if stat is None or not math.isfinite(stat) else float(stat)
+    uc = math.sqrt(s * s + sum(float(v) ** 2 for v in contributions.values()))
+    return {
+        "stat": s,
+        "contributions": {n: float(v) for n, v in contributions.items()},
+        "combined": uc,
+        "U": k * uc,
+        "k": k,
+    }
+
+
+def _unique(samples: BRDFSamples, nb: int) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    g = len(samples) // nb
+    wi, wo = samples.wi[::nb], samples.wo[::nb]
+    y = samples.value.reshape(g, nb)
+    w = (1.0 / samples.sigma).reshape(g, nb) if samples.has_sigma else np.ones((g, nb))
+    return wi, wo, y, np.where(np.isfinite(w), w, 0.0)
+
+
+def _model_values(model: Any, wi: NDArray, wo: NDArray, nb: int, **change: Any) -> NDArray:
+    m = type(model)(**{**model.params, **change}) if change else model
+    return np.asarray(m(wi, wo), float).reshape(len(wi), -1) * np.ones((1, nb))
+
+
+def _jacobian(model: Any, free: list[str], wi: NDArray, wo: NDArray, nb: int) -> NDArray:
+    """Columns: every free parameter, rows: geometry x band (row-major)."""
+    g = len(wi)
+    cols = []
+    zero = {k: 0.0 for k in _K if k in model.params}
+    basis: dict[str, NDArray] = {}
+    for name in free:
+        if "[" in name:
+            k, b = name.split("[")[0], int(name.split("[")[1].rstrip("]"))
+            if k not in basis:
+                basis[k] = _model_values(model, wi, wo, nb, **{**zero, k: np.ones(nb)})
+            col = np.zeros((g, nb))
+            col[:, b] = basis[k][:, b]
+        else:
+            v = float(model.params[name])
+            h = 1e-4 * v
+            up = _model_values(model, wi, wo, nb, **{name: v + h})
+            dn = _model_values(model, wi, wo, nb, **{name: v - h})
+            col = (up - dn) / (2 * h)
+        cols.append(col.reshape(-1))
+    return np.stack(cols, axis=1)
+
+
+def _u_after(knowledge: dict, name: str, corrected: bool) -> float:
+    typ, spread = knowledge.get(name, (0.0, 0.0))
+    return float(spread) if corrected else math.hypot(typ, spread)
+
+
+def _patterns(
+    model: Any,
+    wi: NDArray,
+    wo: NDArray,
+    y: NDArray,
+    kref: NDArray,
+    cfg: Any,
+    knowledge: dict,
+    corr: dict,
+    lamp_u: float,
+    mirror_part: bool = False,
+) -> dict[str, NDArray]:
+    """The laboratory's model of each effect's change of the readings, at its uncertainty
+    after correction: ``{effect: (G, nb)}`` (or a list of patterns to add in quadrature)."""
+    from gonio.campaign.cornell_lab import cone_response, footprint_fraction
+    from gonio.simulator.cornell import forward, inverse
+
+    nb = y.shape[1]
+    out: dict[str, Any] = {}
+    yr = np.clip(y, 0, None) * kref[None, :]
+    u = _u_after(knowledge, "stray_light_fraction", corr["stray"])
+    if u:
+        rel = yr.mean(1, keepdims=True) / np.where(yr > 0, yr, np.inf) - kref.mean() / kref
+        out["stray_light_fraction"] = u * y * np.where(yr > 0, rel, 0.0)
+    if lamp_u:
+        out["lamp_drift"] = lamp_u * y
+    d1 = np.gradient(y, 10.0, axis=1)
+    u = _u_after(knowledge, "slit_fwhm_nm", corr["slit"])
+    if u:
+        fw = knowledge.get("slit_fwhm_nm", (0.0, 0.0))[0] or u
+        d2 = np.zeros_like(y)
+        d2[:, 1:-1] = (y[:, 2:] - 2 * y[:, 1:-1] + y[:, :-2]) / 100.0
+        dlk = np.gradient(np.log(kref), 10.0)
+        out["slit_fwhm_nm"] = (
+            u * 2 * fw / (2.0 * math.sqrt(2.0 * math.log(2.0))) ** 2 * (dlk * d1 + 0.5 * d2)
+        )
+    u = _u_after(knowledge, "wavelength_shift_nm", False)
+    if u:
+        out["wavelength_shift_nm"] = u * d1
+    u = _u_after(knowledge, "nonlinearity", False)
+    if u:
+        xs = yr / np.maximum(yr.max(1, keepdims=True), 1e-300)
+        out["nonlinearity"] = -u * 0.7 * y * (xs - kref / kref.max())
+    u = _u_after(knowledge, "source_solid_angle_error", False)
+    if u and mirror_part:  # the mirror part's top hat rho / (Omega_s cos) scales as 1/Omega_s
+        plain = type(model)(**{**model.params, "specular": False, "d_omega_i": None})
+        out["source_solid_angle_error"] = -u * (
+            cone_response(model, wi, wo, cfg) - cone_response(plain, wi, wo, cfg)
+        )
+    ts = _u_after(knowledge, "source_cone_taper", False)
+    td = _u_after(knowledge, "detector_cone_taper", False)
+    if ts or td:
+        base = cone_response(model, wi, wo, cfg)
+        rel = cone_response(model, wi, wo, cfg, taper=(ts, td)) / np.where(base > 0, base, 1) - 1
+        out["cone_taper"] = y * rel
+    f0 = _model_values(model, wi, wo, nb)
+    u = _u_after(knowledge, "sample_tilt_rad", False)
+    if u:
+        pats = []
+        for axis in (0, 1):
+            k = np.zeros(3)
+            k[axis] = 1.0
+            rot = _rotate(wi, k, u), _rotate(wo, k, u)
+            pats.append((_model_values(model, *rot, nb) - f0) / math.sqrt(2))
+        out["sample_tilt_rad"] = pats
+    u = _u_after(knowledge, "stage_backlash_deg", False) / 2
+    if u:
+        r = inverse(wi, wo, cfg.kinematics)
+        pats = []
+        for axis in range(3):
+            a = np.array(r.angles, float)
+            a[:, axis] += math.radians(u)
+            pats.append(_model_values(model, *forward(a, cfg.kinematics), nb) - f0)
+        out["stage_backlash_deg"] = pats
+    if corr["footprint"] != "refuse" and knowledge.get("fov_diameter_mm", (0, 0))[0] > 0:
+        sizes = [
+            knowledge.get(k, (0.0, 0.0))[0]
+            for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")
+        ]
+        frac = footprint_fraction(wi, wo, *sizes)
+        if corr["footprint"] == "none":
+            out["footprint"] = y * (frac - 1)[:, None]
+        else:
+            pats = []
+            for j, name in enumerate(("beam_diameter_mm", "fov_diameter_mm")):
+                sz = list(sizes)
+                sz[j] += knowledge.get(name, (0.0, 0.0))[1]
+                f2 = footprint_fraction(wi, wo, *sz)
+                pats.append(y * ((f2 - frac) / np.where(frac > 0, frac, 1))[:, None])
+            out["footprint"] = pats
+    return out
+
+
+def _rotate(w: NDArray, k: NDArray, ang: float) -> NDArray:
+    c, s = math.cos(ang), math.sin(ang)
+    return w * c + np.cross(k, w) * s + np.outer(w @ k, k) * (1 - c)
+
+
+def _lamp_u(summary: dict, knowledge: dict, corr: dict, every: int) -> float:
+    """Relative uncertainty of the lamp's output left after correction: with re-measured
+    references, the leave-one-out residual of their linear interpolation (RMS); without,
+    the drift the data sheet allows over the campaign (a rectangular distribution)."""
+    drift = summary.get("reference_drift")
+    if every and corr["drift"] and drift and len(drift) >= 3:
+        t = np.array([d[0] for d in drift])
+        r = np.array([d[1] for d in drift])
+        res = r[1:-1] - (r[:-2] + (r[2:] - r[:-2]) * (t[1:-1] - t[:-2]) / (t[2:] - t[:-2]))
+        return float(np.sqrt(np.mean(res**2)))
+    hours = float(summary.get("campaign_clock_h") or summary.get("estimated_real_instrument_h", 0))
+    w = math.hypot(*knowledge.get("lamp_warmup", (0.0, 0.0)))
+    d = math.hypot(*knowledge.get("lamp_drift", (0.0, 0.0))) * hours
+    return (w + d) / math.sqrt(3.0)
+
+
+def cornell_budget(
+    res: Any,
+    info: dict,
+    samples: BRDFSamples,
+    ref: Any,
+    cfg: Any,
+    knowledge: dict,
+    corrections: dict,
+    summary: dict,
+    *,
+    reference_every: int = 0,
+    k: float = 2.0,
+) -> dict[str, Any]:
+    """The budget of a fitted Cornell campaign (module docstring).
+
+    Returns ``{"parameters": {name: combine(...) + truth_within_U}, "k_summary": {k_dd: ...},
+    "coverage": {...}, "effects": [...]}``; the truth is read from ``summary`` (the
+    campaign's one comparison with the truth), never used for the uncertainties.
+    """
+    from gonio.simulator.cornell import BANDS_NM, _hat_projector
+
+    nb = len(BANDS_NM)
+    wi, wo, y, w = _unique(samples, nb)
+    model = res.model
+    free = list(res.free)
+    use, proj = _hat_projector(tuple(np.round(ref.wavelengths_nm, 9)), tuple(BANDS_NM))
+    kref = np.clip(proj @ (0.5 * (ref.rate["s"] + ref.rate["p"]) / ref.scale)[use], 1e-300, None)
+    lamp_u = _lamp_u(summary, knowledge, corrections, reference_every) if knowledge else 0.0
+    pats = {}
+    if knowledge:
+        pats = _patterns(
+            model,
+            wi,
+            wo,
+            y,
+            kref,
+            cfg,
+            knowledge,
+            corrections,
+            lamp_u,
+            bool(info.get("mirror_part")),
+        )
+    cols, names = [], []
+    for name, p in pats.items():
+        for q in p if isinstance(p, list) else [p]:
+            cols.append(np.nan_to_num(q).reshape(-1))
+            names.append(name)
+    contrib: dict[str, dict[str, float]] = {p: {} for p in free}
+    if cols:
+        jac = _jacobian(model, free, wi, wo, nb)
+        dp = propagate(jac, w.reshape(-1), np.stack(cols, axis=1))
+        for i, p in enumerate(free):
+            acc: dict[str, float] = {}
+            for e, name in enumerate(names):
+                acc[name] = acc.get(name, 0.0) + dp[i, e] ** 2
+            contrib[p] = {n: math.sqrt(v) for n, v in acc.items()}
+    ref_rel = summary.get("reference_band_rel_error") or [0.0] * nb
+    tot = summary.get("stderr_with_reference", {})
+    params: dict[str, Any] = {}
+    for p in free:
+        c = dict(contrib[p])
+        se = res.stderr.get(p)
+        if "[" in p:
+            b = int(p.split("[")[1].rstrip("]"))
+            c["reference_noise"] = abs(float(res.params[p])) * float(ref_rel[b])
+            st = tot.get(p)
+            if st is not None and se is not None and math.isfinite(se):
+                rest = st**2 - se**2 - c["reference_noise"] ** 2
+                c["stray_trap_offset"] = math.sqrt(max(rest, 0.0))
+        params[p] = combine(se, c, k)
+    if "sigma/tau" in summary.get("fit", {}) and "tau" in params and "sigma" not in params:
+        r, t = summary["fit"]["sigma/tau"], float(res.params["tau"])
+        pt = params["tau"]
+        params["sigma/tau"] = combine(
+            pt["stat"] * r / t, {n: v * r / t for n, v in pt["contributions"].items()}, k
+        )
+    return _with_truth(params, summary, list(dict.fromkeys(names)))
+
+
+def _with_truth(params: dict, summary: dict, effects: list[str]) -> dict[str, Any]:
+    truth, fit = summary.get("truth", {}), summary.get("fit", {})
+    n_in = n = 0
+    ks: dict[str, dict[str, Any]] = {}
+    for p, b in params.items():
+        if p in truth and p in fit:
+            err = abs(fit[p] - truth[p])
+            b["error"] = err
+            b["truth_within_U"] = bool(err <= b["U"])
+            n += 1
+            n_in += int(b["truth_within_U"])
+            if "[" in p:
+                s = ks.setdefault(
+                    p.split("[")[0], {"n": 0, "n_within_U": 0, "rel_U": [], "abs_err": []}
+                )
+                s["n"] += 1
+                s["n_within_U"] += int(b["truth_within_U"])
+                s["rel_U"].append(b["U"] / max(abs(fit[p]), 1e-12))
+                s["abs_err"].append(err)
+    for s in ks.values():
+        s["median_rel_U"] = float(np.median(s.pop("rel_U")))
+        s["rms_error"] = float(np.sqrt(np.mean(np.square(s.pop("abs_err")))))
+    return {
+        "parameters": params,
+        "k_summary": ks,
+        "effects": effects,
+        "coverage": {"n": n, "n_within_U": n_in},
+    }
+
+
+def budget_text(budget: dict[str, Any]) -> str:
+    """Lines of the printed summary: σ/τ (or τ) and each k component."""
+    lines = []
+    for p in ("sigma", "tau", "sigma/tau"):
+        b = budget["parameters"].get(p)
+        if b is None:
+            continue
+        top = sorted(b["contributions"].items(), key=lambda kv: -kv[1])[:3]
+        lines.append(
+            f"  budget {p}: stat {b['stat']:.3g}, combined {b['combined']:.3g}, "
+            f"U(k=2) {b['U']:.3g}; largest: " + ", ".join(f"{n} {v:.2g}" for n, v in top)
+        )
+    for kname, s in budget["k_summary"].items():
+        lines.append(
+            f"  budget {kname}: median U/k {100 * s['median_rel_U']:.2f}%, "
+            f"truth within U {s['n_within_U']}/{s['n']}"
+        )
+    c = budget["coverage"]
+    lines.append(f"  budget coverage: {c['n_within_U']}/{c['n']} parameters within U (k=2)")
+    return "\n".join(lines)
