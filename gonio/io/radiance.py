@@ -593,7 +593,12 @@ _RTRACE_OPTS = tuple(
 )
 
 
-def rendered_brdf(material: RadianceMaterial, wi: ArrayLike, wo: ArrayLike) -> NDArray:
+def rendered_brdf(
+    material: RadianceMaterial,
+    wi: ArrayLike,
+    wo: ArrayLike,
+    files: Sequence[str | os.PathLike] = (),
+) -> NDArray:
     """The BRDF Radiance renders for ``material``: rtrace on a flat sample, light from ``wi``.
 
     The sample is a polygon in the xy plane (its normal +z, the material's ``u`` vector as
@@ -602,6 +607,7 @@ def rendered_brdf(material: RadianceMaterial, wi: ArrayLike, wo: ArrayLike) -> N
     The radiance is divided by that of a white Lambertian ``plastic`` traced the same way
     (``cos θi ω / π``), so the result is the rendered BRDF in sr⁻¹, shape ``(N, 3)`` (RGB).
     Ambient calculation and specular sampling are off, so only the source contributes.
+    ``files`` are copied beside the scene (e.g. the XML of a ``BSDF`` material).
     """
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.atleast_2d(np.asarray(wo, dtype=np.float64))
@@ -618,6 +624,8 @@ def rendered_brdf(material: RadianceMaterial, wi: ArrayLike, wo: ArrayLike) -> N
     with tempfile.TemporaryDirectory(prefix="gonio_rtrace_") as tmp:
         if material.cal is not None:
             Path(tmp, str(material.cal_name)).write_text(material.cal)
+        for f in files:
+            shutil.copy(f, tmp)
         out = {}
         for key, text, nm in (
             ("m", material.text, material.name),
