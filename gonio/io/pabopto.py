@@ -359,6 +359,9 @@ def _check_int(name: str, v: Any, lo: int, hi: int) -> None:
 
 
 def _converter(kind: str, samples_per_patch: int, resolution: int, reciprocity: bool) -> list:
+    """The bsdf2klems / bsdf2ttree command (options checked)."""
+    _check_int("samples_per_patch", samples_per_patch, 1, 1 << 20)
+    _check_int("resolution", resolution, 4, 7)
     if kind == "klems":
         return ["bsdf2klems", "-p", "-n", samples_per_patch]
     if kind == "ttree":
@@ -437,8 +440,6 @@ def build_bsdf(
     from gonio.io.radiance import run_tool
 
     conv = _converter(kind, samples_per_patch, resolution, reciprocity)
-    _check_int("samples_per_patch", samples_per_patch, 1, 1 << 20)
-    _check_int("resolution", resolution, 4, 7)
     _check_int("nproc", nproc, 1, 1024)
     allowed = ("isotropic", "quadrilateral", "bilateral", "up", "anisotropic")
     if symmetry is not None and symmetry not in allowed:
@@ -483,8 +484,6 @@ def build_model_bsdf(
     from gonio.io.radiance import _identifier, cal_function, run_tool
 
     conv = _converter(kind, samples_per_patch, resolution, False)
-    _check_int("samples_per_patch", samples_per_patch, 1, 1 << 20)
-    _check_int("resolution", resolution, 4, 7)
     if not isinstance(name, str) or not _NAME.match(name):
         raise ValueError(f"name {name!r} must be a word (letters, digits, _ . -)")
     upv = _check_up(up)

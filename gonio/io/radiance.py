@@ -463,7 +463,8 @@ def model_material(
     """The Radiance material that renders ``model`` as it was fitted.
 
     ``ward_gmd`` → ``plastic2`` (dielectrics) or ``metal2`` (``material_class`` "metal…")
-    through :func:`ward_material`; any model of :data:`CAL_MODELS` (or a sum of them) →
+    through :func:`ward_material` (or the ``BRTDfunc`` when its reflectances have no valid
+    ``plastic2``/``metal2`` colour); any model of :data:`CAL_MODELS` (or a sum of them) →
     ``BRTDfunc`` with the ``.cal`` of :func:`cal_function` (file ``cal_name``, default
     ``<name>.cal``).
 
@@ -492,8 +493,11 @@ def model_material(
     ux = _check_u(u)
     if isinstance(model, BRDF) and not isinstance(model, Sum) and model.name == "ward_gmd":
         mtype = material_type_for(material_class)
-        text = ward_material(model.params, mtype, name=name, u=ux, comment=comment)
-        return RadianceMaterial(name, mtype, text)
+        try:
+            text = ward_material(model.params, mtype, name=name, u=ux, comment=comment)
+            return RadianceMaterial(name, mtype, text)
+        except ValueError:  # e.g. a plastic2 colour ρd/(1 − ρs) above 1: the exact BRTDfunc
+            pass
     if not isinstance(model, BRDF):
         raise ValueError(f"model must be a gonio BRDF, got {type(model).__name__}")
     cal_name = f"{name}.cal" if cal_name is None else cal_name

@@ -214,3 +214,7 @@ def test_model_route_klems_and_ttree(tmp_path):
         pabopto.build_model_bsdf(brdf.create("phong"), tmp_path, "x")
     with pytest.raises(ValueError, match="kind"):
         pabopto.build_model_bsdf(m, tmp_path, "x", kind="matrix")
+    with pytest.raises(ValueError, match="resolution"):
+        pabopto.build_model_bsdf(m, tmp_path, "x", kind="ttree", resolution=9)
+    with pytest.raises(ValueError, match="up must"):
+        pabopto.build_model_bsdf(m, tmp_path, "x", up=(0, 0, 0))

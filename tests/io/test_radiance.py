@@ -196,6 +196,15 @@ def test_model_material_refuses_what_it_cannot_render():
         radiance.cal_function(brdf.create("ward"), "1bad")
 
 
+def test_gmd_without_a_valid_plastic2_colour_falls_back_to_the_exact_brtdfunc():
+    """ρd + ρs > 1 has no plastic2/metal2 colour ≤ 1; the BRTDfunc still renders it."""
+    m = brdf.create("ward_gmd", rho_d=0.85, rho_s=0.2, alpha_x=0.1, alpha_y=0.1)
+    for cls in ("dielectric", "metal"):
+        assert radiance.model_material(m, cls, name="x").kind == "BRTDfunc"
+    ok = brdf.create("ward_gmd", rho_d=0.7, rho_s=0.2, alpha_x=0.1, alpha_y=0.1)
+    assert radiance.model_material(ok, "metal", name="x").kind == "metal2"
+
+
 def test_write_material_files(tmp_path):
     mat = radiance.model_material(brdf.create("ward", **_ANISO), name="brass")
     paths = radiance.write_material_files(tmp_path, mat)
