@@ -145,8 +145,9 @@ def pabopto_symmetry(theta_phi_deg: Sequence[tuple[float, float]]) -> str:
             "0, 90, 180, 270): pabopto2bsdf infers a BSDF's symmetry from azimuths strictly "
             "inside a quadrant and builds no valid interpolant from these. For a sample "
             "mirror-symmetric about its x and y axes (rolled or brushed metal) add one "
-            "rotation inside (1, 89) deg, e.g. rotations 0, 45, 90 (quadrilateral symmetry); "
-            "for an isotropic sample export a single azimuth"
+            "rotation inside (1, 89) deg, e.g. rotations 0, 45, 90 (quadrilateral symmetry; "
+            "gonio campaign --rotations 0,45,90); for an isotropic sample export a single "
+            "azimuth"
         )
     if sym == "?":
         raise ValueError(
