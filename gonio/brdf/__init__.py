@@ -16,6 +16,7 @@ from gonio.brdf import (  # noqa: F401  (importing registers the models)
     oren_nayar,
     tabulated,
     ward,
+    ward_gmd,
 )
 from gonio.brdf.base import (
     BRDF,

@@ -123,20 +123,21 @@ def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -
     }
 
 
-def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> str | None:
-    if plan.model not in ("ward", "ward_approx"):
-        return None
-    from gonio.io.radiance import material_type_for, ward_material
+def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> Any:
+    """The Radiance material that renders the fit as fitted
+    (:func:`gonio.io.radiance.model_material`: ``plastic2``/``metal2`` for ``ward_gmd``, a
+    ``BRTDfunc`` + ``.cal`` for the other translatable models), or ``None`` for a model
+    Radiance cannot render exactly."""
+    from gonio.io.radiance import model_material
 
-    mtype = material_type_for(str(info.get("class", "dielectric")))
+    params = ", ".join(f"{k} {v:.5g}" for k, v in result.params.items())
     try:
-        return ward_material(
-            result.params,
-            mtype,
+        return model_material(
+            result.model,
+            str(info.get("class", "dielectric")),
             name=f"gonio_{plan.material}",
             comment=f"gonio campaign fit of {plan.material} ({plan.model}, seed {plan.seed})\n"
-            f"rho_d {result.params['rho_d']:.5g} rho_s {result.params['rho_s']:.5g} "
-            f"alpha_x {result.params['alpha_x']:.5g} alpha_y {result.params['alpha_y']:.5g}",
+            + params,
         )
     except ValueError:
         return None
@@ -205,9 +206,11 @@ def write_report(
         for k, v in compare.items()
     }
     write_json(outp / "fit.json", fitd)
-    rad = radiance(plan, info, result)
-    if rad is not None:
-        from gonio.io.radiance import write_material
+    mat = radiance(plan, info, result)
+    if mat is not None:
+        from gonio.io.radiance import write_material_files
 
-        write_material(outp / "material.rad", rad)
+        write_material_files(outp, mat)
         summary["files"]["radiance"] = "material.rad"
+        if mat.cal_name is not None:
+            summary["files"]["radiance_cal"] = mat.cal_name

@@ -121,6 +121,7 @@ _EXTRA = [
     ("ward", dict(rho_d=0.1, rho_s=0.33, alpha_x=0.05, alpha_y=0.16)),  # rolled brass
     ("ward", dict(rho_d=0.0, rho_s=1.0, alpha_x=0.3, alpha_y=0.08)),
     ("ward_neumann", dict(rho_d=0.2, rho_s=0.5, alpha_x=0.2, alpha_y=0.1)),
+    ("ward_gmd", dict(rho_d=0.1, rho_s=0.33, alpha_x=0.05, alpha_y=0.16)),  # rolled brass
     ("phong", dict(n=3.0, rho_d=0.4)),
     ("phong_neumann", dict(n=200.0, p=0.5)),
     ("phong_retro", dict(n=5.0, rho_d=0.2)),

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
-from gonio import materials
+from gonio import brdf, materials
 from gonio.io import radiance
 
 
@@ -67,3 +70,167 @@ def test_bad_inputs():
         radiance.ward_material({**p, "rho_s": [0.1, 0.2, 0.1]}, "metal2")
     with pytest.raises(ValueError, match="6 real"):
         radiance.parse_material("void plastic2 x 4 1 0 0 . 0 5 1 1 1 0 0")
+
+
+# ----------------------------------------------------------------------------- exact renders
+# Every model below is evaluated by Radiance itself: its .cal through rcalc, the material
+# through rtrace (pyradiance's Radiance 6 binaries).
+
+_ANISO = dict(rho_d=0.1, rho_s=0.33, alpha_x=0.05, alpha_y=0.16)
+
+
+def _dir(theta_deg: float, phi: float) -> np.ndarray:
+    t = math.radians(theta_deg)
+    return np.array([math.sin(t) * math.cos(phi), math.sin(t) * math.sin(phi), math.cos(t)])
+
+
+def _cal_models() -> list:
+    return [
+        brdf.create("ward", **_ANISO),
+        brdf.create("ward_approx", **_ANISO),
+        brdf.create("ward_neumann", **_ANISO),
+        brdf.create("ward_duer", **_ANISO),
+        brdf.create("ward_gmd", **_ANISO),
+        brdf.create("cook_torrance", m=0.2, f0=0.05, k_s=0.5, rho_d=0.2),
+        brdf.create("cook_torrance", m=0.3, k_s=0.4, rho_d=0.1),
+        materials.get("blue_paint_lafortune"),
+        brdf.create("lambert", rho=0.3) + brdf.create("ward", **{**_ANISO, "rho_d": 0.0}),
+    ]
+
+
+def _tools():
+    pytest.importorskip("pyradiance")
+
+
+def test_cal_function_equals_the_model_in_rcalc(tmp_path):
+    """rcalc evaluates each ``<prefix>_bsdf`` at 2000 random pairs: equal to gonio to 1e-12."""
+    _tools()
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(2000, 6))
+    wi = v[:, :3] / np.linalg.norm(v[:, :3], axis=1, keepdims=True)
+    wo = v[:, 3:] / np.linalg.norm(v[:, 3:], axis=1, keepdims=True)
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
+    rays = np.concatenate([wi, wo], axis=1).astype("<f8").tobytes()
+    for k, model in enumerate(_cal_models()):
+        _, cal = radiance.cal_function(model, f"m{k}")
+        (tmp_path / f"m{k}.cal").write_text(cal)
+        expr = f"$1=m{k}_bsdf($1,$2,$3,$4,$5,$6)"
+        out = radiance.run_tool(
+            ["rcalc", "-id6", "-od", "-f", f"m{k}.cal", "-e", expr], cwd=tmp_path, stdin=rays
+        )
+        np.testing.assert_allclose(np.frombuffer(out, "<f8"), model(wi, wo), rtol=1e-12)
+
+
+def _worst_rendered_error(material, model) -> float:
+    """Worst |rtrace / gonio − 1| over θi 0/30/60/75°, two azimuths, the mirror direction,
+    the lobe, off-peak and θo up to 85°."""
+    worst = 0.0
+    for ti in (0.0, 30.0, 60.0, 75.0):
+        for pi in (0.0, 1.1):
+            wi = _dir(ti, pi)
+            wo = [wi * [-1.0, -1.0, 1.0]] + [
+                _dir(t, p) for t in (5.0, 30.0, 60.0, 85.0) for p in (pi + math.pi + 0.1, 2.5)
+            ]
+            wo = np.array(wo)
+            got = radiance.rendered_brdf(material, wi, wo)
+            want = np.asarray(model(np.broadcast_to(wi, wo.shape).copy(), wo))
+            assert np.all(got[:, 0] == got[:, 2])  # grey
+            worst = max(worst, float(np.max(np.abs(got[:, 0] / want - 1.0))))
+    return worst
+
+
+@pytest.mark.parametrize(
+    ("preset", "kind"), [("rolled_brass", "metal2"), ("varnished_plywood", "plastic2")]
+)
+def test_gmd_fit_renders_as_fitted_through_plastic2_metal2(preset, kind):
+    _tools()
+    info = materials.info(preset)
+    model = brdf.create("ward_gmd", **info["params"])
+    mat = radiance.model_material(model, info["class"], name="sample")
+    assert mat.kind == kind and mat.cal is None
+    assert _worst_rendered_error(mat, model) < 2e-5
+
+
+@pytest.mark.parametrize("k", [0, 5, 7])  # ward eq. 5a, Cook-Torrance with Fresnel, Lafortune
+def test_other_fits_render_as_fitted_through_brtdfunc(k):
+    _tools()
+    model = _cal_models()[k]
+    mat = radiance.model_material(model, "metal", name="sample")
+    assert mat.kind == "BRTDfunc" and mat.cal_name == "sample.cal"
+    assert _worst_rendered_error(mat, model) < 3e-5
+
+
+def test_ward_parameters_in_metal2_render_gmd_not_eq5a():
+    """Why ward fits are no longer written as metal2: Radiance renders the mirror peak
+    1/cos θi too bright (+15 / +100 / +286 % at 30 / 60 / 75°)."""
+    _tools()
+    p = materials.info("rolled_brass")["params"]
+    mat = radiance.RadianceMaterial("b", "metal2", radiance.ward_material(p, "metal2", "b"))
+    ward = brdf.create("ward", **p)
+    for t in (30.0, 60.0, 75.0):
+        wi = _dir(t, 0.0)
+        wo = wi * [-1.0, -1.0, 1.0]
+        ratio = radiance.rendered_brdf(mat, wi, wo[None])[0, 0] / float(ward(wi, wo))
+        spec_ratio = 1.0 / math.cos(math.radians(t))
+        rd = p["rho_d"] / math.pi
+        expect = (rd + (float(ward(wi, wo)) - rd) * spec_ratio) / float(ward(wi, wo))
+        assert ratio == pytest.approx(expect, rel=2e-5)
+    assert ratio > 3.8
+
+
+def test_model_material_refuses_what_it_cannot_render():
+    with pytest.raises(ValueError, match="no Radiance translation"):
+        radiance.model_material(brdf.create("phong"), name="x")
+    with pytest.raises(ValueError, match="no Radiance translation"):
+        radiance.model_material(brdf.create("lambert") + brdf.create("oren_nayar"), name="x")
+    with pytest.raises(ValueError, match="spectral"):
+        radiance.model_material(materials.get("aluminized_non_glare_glass"), name="x")
+    lobes = [(-1.0, -1.0, 1.0, 20.0)]
+    with pytest.raises(ValueError, match="r_m"):
+        radiance.model_material(brdf.create("lafortune", lobes=lobes, r_m=0.2), name="x")
+    with pytest.raises(ValueError, match="name"):
+        radiance.model_material(brdf.create("ward"), name="two words")
+    with pytest.raises(ValueError, match="u must"):
+        radiance.model_material(brdf.create("ward"), name="x", u=(0, 0, 0))
+    with pytest.raises(ValueError, match="prefix"):
+        radiance.cal_function(brdf.create("ward"), "1bad")
+
+
+def test_gmd_without_a_valid_plastic2_colour_falls_back_to_the_exact_brtdfunc():
+    """ρd + ρs > 1 has no plastic2/metal2 colour ≤ 1; the BRTDfunc still renders it."""
+    m = brdf.create("ward_gmd", rho_d=0.85, rho_s=0.2, alpha_x=0.1, alpha_y=0.1)
+    for cls in ("dielectric", "metal"):
+        assert radiance.model_material(m, cls, name="x").kind == "BRTDfunc"
+    ok = brdf.create("ward_gmd", rho_d=0.7, rho_s=0.2, alpha_x=0.1, alpha_y=0.1)
+    assert radiance.model_material(ok, "metal", name="x").kind == "metal2"
+
+
+def test_write_material_files(tmp_path):
+    mat = radiance.model_material(brdf.create("ward", **_ANISO), name="brass")
+    paths = radiance.write_material_files(tmp_path, mat)
+    assert [p.name for p in paths] == ["material.rad", "brass.cal"]
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["brass.cal", "material.rad"]
+    assert "BRTDfunc brass" in (tmp_path / "material.rad").read_text()
+    gmd = radiance.model_material(brdf.create("ward_gmd", **_ANISO), "metal", name="b2")
+    (tmp_path / "sub").mkdir()
+    assert [p.name for p in radiance.write_material_files(tmp_path / "sub", gmd)] == [
+        "material.rad"
+    ]
+    with pytest.raises(ValueError, match="not an existing directory"):
+        radiance.write_material_files(tmp_path / "missing", mat)
+
+
+def test_missing_tool_says_how_to_install(monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_pyradiance(name, *a, **k):
+        if name == "pyradiance":
+            raise ImportError(name)
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_pyradiance)
+    monkeypatch.setenv("PATH", "")
+    with pytest.raises(FileNotFoundError, match=r"gonio\[radiance\]"):
+        radiance.radiance_tool("rtrace")

@@ -1,0 +1,172 @@
+"""``gonio export``: samples and fits to Radiance (PAB-Opto files, BSDF XML, materials).
+
+* ``gonio export pabopto SAMPLES OUT`` — one PAB-Opto file per incident direction
+  (:func:`gonio.io.pabopto.write_pabopto`);
+* ``gonio export bsdf SAMPLES OUT`` — those files through pabopto2bsdf and bsdf2klems or
+  bsdf2ttree, checked by checkBSDF (:func:`gonio.io.pabopto.build_bsdf`);
+* ``gonio export material OUT --fit fit.json`` (or ``--model NAME --param k=v``) — the
+  ``material.rad`` (+ ``.cal``) that renders the fitted model exactly
+  (:func:`gonio.io.radiance.model_material`), optionally ``--bsdf klems|ttree`` built from
+  its ``.cal`` (:func:`gonio.io.pabopto.build_model_bsdf`).
+
+The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from gonio.cli._common import add_json_option, write_json
+
+COMMAND = "export"
+HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
+
+
+def _vector(text: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--up {text!r}: expected three numbers x,y,z") from None
+    if len(v) != 3:
+        raise ValueError(f"--up {text!r}: expected three numbers x,y,z")
+    return v  # type: ignore[return-value]
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("what", choices=["pabopto", "bsdf", "material"], help="what to write")
+    parser.add_argument(
+        "source", help="samples table (.csv/.npz) for pabopto/bsdf; the output folder for material"
+    )
+    parser.add_argument("out", nargs="?", help="output folder (pabopto, bsdf)")
+    parser.add_argument("--name", default="gonio", help="sample / material name (default gonio)")
+    parser.add_argument(
+        "--negative",
+        default="error",
+        choices=["error", "clip", "drop"],
+        help="values below 0: refuse (default), clip to 0 or drop",
+    )
+    parser.add_argument("--kind", default="klems", choices=["klems", "ttree"], help="BSDF form")
+    parser.add_argument(
+        "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
+    )
+    parser.add_argument("--resolution", type=int, default=6, help="bsdf2ttree -g (4..7)")
+    parser.add_argument("--reciprocity", action="store_true", help="bsdf2ttree +a")
+    parser.add_argument(
+        "--symmetry",
+        choices=["isotropic", "quadrilateral", "bilateral", "up", "anisotropic"],
+        help="pabopto2bsdf -s (default: inferred from the incident azimuths)",
+    )
+    parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
+    parser.add_argument("--nproc", type=int, default=1, help="pabopto2bsdf -n")
+    parser.add_argument("--fit", help="fit.json (material): its model and parameters")
+    parser.add_argument("--model", help="model name (material, instead of --fit)")
+    parser.add_argument(
+        "--param", action="append", default=[], metavar="NAME=VALUE", help="model parameter"
+    )
+    parser.add_argument(
+        "--class",
+        dest="material_class",
+        default="dielectric",
+        help="sample class: metal (metal2) or dielectric (plastic2); default dielectric",
+    )
+    parser.add_argument(
+        "--bsdf", choices=["klems", "ttree"], help="material: also build the model's BSDF XML"
+    )
+    add_json_option(parser)
+
+
+def _model(args):
+    from gonio import brdf
+
+    if (args.fit is None) == (args.model is None):
+        raise ValueError("material: give either --fit fit.json or --model NAME")
+    if args.fit is not None:
+        d = json.loads(Path(args.fit).read_text())
+        name, params = d.get("model"), dict(d.get("params") or {})
+        if not isinstance(name, str) or "+" in name:
+            raise ValueError(
+                f"--fit {args.fit}: model {name!r}; sums and lobe models are exported "
+                "through the Python API (gonio.io.radiance.model_material)"
+            )
+    else:
+        name, params = args.model, {}
+    for item in args.param:
+        k, sep, v = item.partition("=")
+        if not sep:
+            raise ValueError(f"--param {item!r}: expected NAME=VALUE")
+        try:
+            params[k.strip()] = float(v)
+        except ValueError:
+            raise ValueError(f"--param {item!r}: {v!r} is not a number") from None
+    return brdf.create(name, **params)
+
+
+def run(args) -> int:
+    try:
+        return _run(args)
+    except (FileNotFoundError, RuntimeError) as exc:  # Radiance missing, or a tool failed
+        raise ValueError(str(exc)) from None
+
+
+def _run(args) -> int:
+    from gonio.io import pabopto
+
+    up = _vector(args.up)
+    report: dict = {"what": args.what}
+    if args.what == "material":
+        from gonio.io import radiance
+
+        out = Path(args.source)
+        out.mkdir(parents=True, exist_ok=True)
+        model = _model(args)
+        mat = radiance.model_material(model, args.material_class, name=args.name)
+        paths = radiance.write_material_files(out, mat)
+        print(f"{mat.kind} {mat.name}: " + ", ".join(str(p) for p in paths))
+        report.update(kind=mat.kind, files=[str(p) for p in paths])
+        if args.bsdf:
+            b = pabopto.build_model_bsdf(
+                model, out, args.name, args.bsdf, args.samples_per_patch, args.resolution, up
+            )
+            _print_build(b)
+            report["bsdf"] = b.to_dict()
+    else:
+        from gonio.io.samples_table import read_samples
+
+        if args.out is None:
+            raise ValueError(f"{args.what}: give the output folder after the samples table")
+        samples = read_samples(args.source)
+        if args.what == "pabopto":
+            paths = pabopto.write_pabopto(samples, args.out, args.name, args.negative)
+            sym = pabopto.pabopto_symmetry([(t, p) for t, p, _ in pabopto.incidences(samples)])
+            print(f"{len(paths)} PAB-Opto files in {args.out} ({pabopto.SYMMETRIES[sym]})")
+            report.update(files=[str(p) for p in paths], symmetry=pabopto.SYMMETRIES[sym])
+        else:
+            b = pabopto.build_bsdf(
+                samples,
+                args.out,
+                args.name,
+                kind=args.kind,
+                samples_per_patch=args.samples_per_patch,
+                resolution=args.resolution,
+                reciprocity=args.reciprocity,
+                symmetry=args.symmetry,
+                up=up,
+                negative=args.negative,
+                nproc=args.nproc,
+            )
+            _print_build(b)
+            report["bsdf"] = b.to_dict()
+    if args.json:
+        write_json(args.json, report)
+    return 0
+
+
+def _print_build(b) -> None:
+    refl = b.components.get("Interior Refl", {})
+    times = ", ".join(f"{k} {v:.1f} s" for k, v in b.seconds.items())
+    print(
+        f"{b.kind} BSDF ({b.symmetry}) {b.xml}; primitive {b.rad}; checkBSDF: Lambertian "
+        f"{refl.get('lambertian', [float('nan')])[0]:.3f}, max directional reflectance "
+        f"{refl.get('max_total', float('nan')):.3f}; {times}"
+    )

@@ -1,0 +1,517 @@
+"""Sample tables as PAB-Opto measurement files, and Radiance BSDFs built from them.
+
+LBNL's goniophotometer workflow carries measured BRDFs into Radiance as PAB-Opto ("Mountain")
+files, one per incident direction, converted by ``pabopto2bsdf`` into a scattering
+interpolant (SIR) and by ``bsdf2klems`` or ``bsdf2ttree`` into BSDF XML for Radiance's
+``BSDF`` material. :func:`write_pabopto` writes the files; :func:`build_bsdf` runs the
+tools (when installed: ``pip install 'gonio[radiance]'``) and ``checkBSDF``;
+:func:`build_model_bsdf` builds the same XML from a fitted model's exact ``.cal`` instead
+(``bsdf2klems -f`` / ``bsdf2ttree -f``), which needs no symmetry and no interpolation.
+:func:`klems_hemispherical` reads a Klems XML's hemispherical reflectance per incident patch.
+
+File format (``pabopto2bsdf(1)`` and ``src/cv/pabopto2bsdf.c`` of Radiance 6.0)
+--------------------------------------------------------------------------------
+Each file starts with ``#`` header lines::
+
+    #sample_name "rolled_brass"
+    #format: theta phi BRDF
+    #intheta 30
+    #inphi 90
+    #upphi 90
+    #colorimetry: CIE-Y
+
+followed by one line ``theta_o phi_o value`` per sample (degrees, sr⁻¹). Angles are in the
+sample frame: θ from the normal, φ counter-clockwise seen from the front, which is gonio's
+frame (φ from +x towards +y); ``intheta``/``inphi`` is the direction towards the source, as
+gonio's ``wi`` (pabopto2bsdf puts the mirror peak at ``(−x, −y, z)`` of it). ``#upphi 90``
+keeps gonio's axes as Radiance's standard BSDF axes (φ = 0 the sample's x, φ = 90° its
+"up" y axis), so the ``BSDF`` primitive takes the sample's y axis as its up vector.
+
+Symmetry (what pabopto2bsdf infers, and what gonio checks before writing)
+-------------------------------------------------------------------------
+pabopto2bsdf infers the BSDF's symmetry from the incident azimuths (``bsdfrep.c``,
+``new_input_direction``): incidences within 1° of the normal are ignored; an azimuth counts
+for a quadrant only if it lies *strictly inside* it (1° < φ < 89°, 91° < φ < 179°, …). One
+azimuth for every incidence means isotropic; azimuths inside one quadrant mean
+quadrilateral symmetry (the sample mirror-symmetric about x and y, as rolled or brushed
+metal, whose Ward α_x, α_y axes are x and y); two adjacent quadrants bilateral (or "up",
+which must be asked for); all four anisotropic. Several azimuths that all lie on quadrant
+boundaries — the LBL campaign's default rotations 0° and 90° of an anisotropic sample — form
+no valid symmetry: pabopto2bsdf builds a broken interpolant ("41 incident directions but
+only 1 interpolant") that bsdf2ttree cannot use. :func:`pabopto_symmetry` reproduces the
+rule and :func:`write_pabopto` refuses such a set before writing anything, naming the
+rotation to add: for the mirror-symmetric sample a researcher means by measuring 0° and 90°,
+one azimuth strictly inside the quadrant (45°) gives quadrilateral symmetry, which is what
+they would expect; gonio does not invent data at an azimuth it did not measure.
+
+References
+----------
+.. [Radiance] G. J. Ward et al., Radiance 6.0 (LBNL): ``pabopto2bsdf(1)``,
+   ``bsdf2klems(1)``, ``bsdf2ttree(1)`` manual pages; ``src/cv/pabopto2bsdf.c``
+   (header keywords), ``src/cv/bsdfrep.c`` (``new_input_direction``: the symmetry rule,
+   ``def_rbf_spec``: the mirror direction).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gonio.io.atomic import atomic_write_bytes
+from gonio.samples import BRDFSamples
+
+__all__ = [
+    "SYMMETRIES",
+    "BSDFBuild",
+    "build_bsdf",
+    "build_model_bsdf",
+    "incidences",
+    "klems_hemispherical",
+    "pabopto_files",
+    "pabopto_symmetry",
+    "parse_check_bsdf",
+    "write_pabopto",
+]
+
+#: pabopto2bsdf's symmetry codes (its ``quadrant_sym`` table) by quadrant-coverage bit mask
+_QUADRANT_SYM = "IQQBQ?B?QB??B??A"  # index = QUAD1 | QUAD2<<1 | QUAD3<<2 | QUAD4<<3
+SYMMETRIES = {"I": "isotropic", "Q": "quadrilateral", "B": "bilateral", "A": "anisotropic"}
+_NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def incidences(samples: BRDFSamples) -> list[tuple[float, float, np.ndarray]]:
+    """``(theta_i_deg, phi_i_deg, row_indices)`` per distinct incident direction.
+
+    Directions are distinct at 1e-6°; normal incidences (θi < 1e-6°) are one direction
+    (their azimuth is meaningless; written as 0). Sorted by θi, then φi.
+    """
+    ti = np.degrees(samples.theta_i)
+    pi = np.mod(np.degrees(samples.phi_i), 360.0)
+    normal = ti < 1e-6
+    pi = np.where(normal, 0.0, pi)
+    key = np.stack([np.round(ti, 6), np.round(pi, 6) % 360.0], axis=1)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    out = []
+    for k, (t, p) in enumerate(uniq):
+        out.append((float(t), float(p), np.flatnonzero(inv == k)))
+    return out
+
+
+def pabopto_symmetry(theta_phi_deg: Sequence[tuple[float, float]]) -> str:
+    """The symmetry pabopto2bsdf infers from incident ``(θ, φ)`` in degrees (``upphi`` 90).
+
+    Returns ``"I"``, ``"Q"``, ``"B"`` or ``"A"`` (:data:`SYMMETRIES`).
+
+    Raises
+    ------
+    ValueError
+        The azimuths form no valid symmetry (several azimuths all on quadrant boundaries,
+        or an illegal quadrant combination); the message names the rotations to add.
+    """
+    single = None
+    ref_phi = None
+    mask = 0
+    phis = set()
+    for theta, phi in theta_phi_deg:
+        if theta < 1.0:  # pabopto2bsdf: "don't rely on phi near normal"
+            continue
+        phi = float(phi) % 360.0
+        phis.add(round(phi, 6))
+        if single is None:
+            single = True
+        elif single:
+            single = round(phi) == round(ref_phi)
+        ref_phi = phi
+        for q in range(4):
+            if 90.0 * q + 1.0 < phi < 90.0 * q + 89.0:
+                mask |= 1 << q
+    shown = ", ".join(f"{p:g}" for p in sorted(phis))
+    if single or single is None:
+        return "I"
+    sym = _QUADRANT_SYM[mask]
+    if mask == 0:
+        raise ValueError(
+            f"incident azimuths {{{shown}}} deg all lie on quadrant boundaries (within 1 deg of "
+            "0, 90, 180, 270): pabopto2bsdf infers a BSDF's symmetry from azimuths strictly "
+            "inside a quadrant and builds no valid interpolant from these. For a sample "
+            "mirror-symmetric about its x and y axes (rolled or brushed metal) add one "
+            "rotation inside (1, 89) deg, e.g. rotations 0, 45, 90 (quadrilateral symmetry; "
+            "gonio campaign --rotations 0,45,90); for an isotropic sample export a single "
+            "azimuth"
+        )
+    if sym == "?":
+        raise ValueError(
+            f"incident azimuths {{{shown}}} deg cover quadrants that form no symmetry "
+            "pabopto2bsdf accepts (one quadrant: quadrilateral; two adjacent: bilateral; "
+            "all four: anisotropic); add rotations to complete adjacent quadrants"
+        )
+    return sym
+
+
+def pabopto_files(
+    samples: BRDFSamples, sample_name: str = "gonio", negative: str = "error"
+) -> dict[str, str]:
+    """File name → PAB-Opto text, one file per incident direction (see the module docstring).
+
+    Parameters
+    ----------
+    samples : BRDFSamples
+        A grey sample table (values in sr⁻¹) with at least two incident directions.
+    sample_name : str
+        ``#sample_name`` (no double quote).
+    negative : {"error", "clip", "drop"}
+        Values below 0 (noise in a dark region): refused (default), clipped to 0, or dropped.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two incident directions, a spectral table, negative values (with
+        ``negative="error"``), an incident direction without samples, or azimuths without
+        a symmetry pabopto2bsdf accepts (:func:`pabopto_symmetry`).
+    """
+    if not isinstance(samples, BRDFSamples):
+        raise ValueError(f"samples must be a BRDFSamples table, got {type(samples).__name__}")
+    if samples.wavelength_nm is not None:
+        raise ValueError(
+            "samples is spectral; PAB-Opto files hold one photometric value (CIE-Y) per "
+            "direction: export a grey table (one band)"
+        )
+    if negative not in ("error", "clip", "drop"):
+        raise ValueError(f"negative {negative!r}; expected 'error', 'clip' or 'drop'")
+    if not isinstance(sample_name, str) or '"' in sample_name or "\n" in sample_name:
+        raise ValueError(f"sample_name {sample_name!r} must be one line without double quotes")
+    value = samples.value
+    bad = value < 0.0
+    if bad.any() and negative == "error":
+        raise ValueError(
+            f"samples has {int(bad.sum())} values below 0 (min {float(value.min()):.3g} sr^-1); "
+            "a BRDF cannot be negative: pass negative='clip' or 'drop' to export noisy data"
+        )
+    inc = incidences(samples)
+    if len(inc) < 2:
+        raise ValueError(
+            f"samples has {len(inc)} incident direction(s); pabopto2bsdf needs at least two"
+        )
+    pabopto_symmetry([(t, p) for t, p, _ in inc])
+    to = np.degrees(samples.theta_o)
+    po = np.mod(np.degrees(samples.phi_o), 360.0)
+    files: dict[str, str] = {}
+    for t, p, rows in inc:
+        v = value[rows]
+        if negative == "clip":
+            v = np.maximum(v, 0.0)
+        keep = v >= 0.0
+        if not keep.any():
+            raise ValueError(f"incident direction theta {t:g}, phi {p:g} deg has no samples")
+        head = (
+            f'#sample_name "{sample_name}"\n#format: theta phi BRDF\n#intheta {t:.6f}\n'
+            f"#inphi {p:.6f}\n#upphi 90\n#colorimetry: CIE-Y\n"
+        )
+        body = "".join(
+            f"{a:.6f} {b:.6f} {c:.9g}\n" for a, b, c in zip(to[rows][keep], po[rows][keep], v[keep])
+        )
+        files[f"{sample_name}_t{t:07.3f}_p{p:07.3f}.dat"] = head + body
+    return files
+
+
+def write_pabopto(
+    samples: BRDFSamples,
+    folder: str | os.PathLike,
+    sample_name: str = "gonio",
+    negative: str = "error",
+) -> list[Path]:
+    """Write :func:`pabopto_files` into ``folder`` (created if missing); the paths written.
+
+    Everything is checked and formatted before the first file is written; each file is
+    written atomically, and if writing one fails the files already written are removed, so
+    the folder never holds a partial set.
+    """
+    if not isinstance(sample_name, str) or not _NAME.match(sample_name):
+        raise ValueError(f"sample_name {sample_name!r} must be a word (letters, digits, _ . -)")
+    files = pabopto_files(samples, sample_name, negative)
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"folder {str(folder)!r} cannot be created: {exc}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"folder {str(folder)!r} is not writable")
+    written: list[Path] = []
+    try:
+        for name, text in files.items():
+            written.append(atomic_write_bytes(folder / name, text.encode("ascii")))
+    except OSError:
+        for p in written:
+            p.unlink(missing_ok=True)
+        raise
+    return written
+
+
+@dataclass
+class BSDFBuild:
+    """What a BSDF build made: the XML, the ``BSDF`` primitive, checkBSDF's report.
+
+    ``check`` is checkBSDF's text; ``components`` its table per component (``"Interior
+    Refl"`` is the front reflection): ``lambertian`` (XYZ, fractions), ``max_total`` (the
+    largest directional-hemispherical reflectance over incidences, a fraction) and
+    ``reciprocity_error`` (min, mean, max, fractions). ``seconds`` times each program.
+    """
+
+    xml: Path
+    rad: Path
+    kind: str
+    symmetry: str
+    seconds: dict[str, float] = field(default_factory=dict)
+    check: str = ""
+    components: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (paths as strings)."""
+        return {
+            "xml": str(self.xml),
+            "rad": str(self.rad),
+            "kind": self.kind,
+            "symmetry": SYMMETRIES.get(self.symmetry, self.symmetry),
+            "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
+            "components": self.components,
+        }
+
+
+_COMPONENTS = ("Interior Refl", "Exterior Refl", "Int->Ext Trans", "Ext->Int Trans")
+
+
+def parse_check_bsdf(text: str) -> dict[str, dict[str, Any]]:
+    """checkBSDF's component table: see :class:`BSDFBuild` (``components``)."""
+    out: dict[str, dict[str, Any]] = {}
+    recip = False
+    for line in text.splitlines():
+        if line.startswith("Component") and "Reciprocity" in line:
+            recip = True
+            continue
+        name = next((c for c in (*_COMPONENTS, "Transmission") if line.startswith(c)), None)
+        if name is None:
+            continue
+        nums = [float(x) for x in re.findall(r"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", line)]
+        entry = out.setdefault(name, {})
+        if recip and len(nums) >= 3:
+            entry["reciprocity_error"] = [x / 100.0 for x in nums[-3:]]
+        elif not recip and len(nums) >= 5:
+            entry["lambertian"] = [x / 100.0 for x in nums[:3]]
+            entry["max_total"] = nums[3] / 100.0
+            entry["min_angle_deg"] = nums[4]
+    return out
+
+
+def klems_hemispherical(xml_path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Directional-hemispherical reflectance of each incident Klems patch of a Klems XML.
+
+    ``R_i = Σ_j f_ji Λ_j``: the matrix rows are exiting patches (``IncidentDataStructure``
+    ``Columns``), ``Λ_j = π (sin² θ_hi − sin² θ_lo) / n_φ`` the projected solid angle of
+    exiting patch ``j`` of its ring. Returns ``{"theta_deg", "phi_deg"}`` (patch centres)
+    and one array per ``WavelengthDataDirection`` (e.g. ``"Reflection Back"``, Radiance's
+    front side).
+    """
+    import xml.etree.ElementTree as ET
+
+    ns = {"w": "http://windows.lbl.gov"}
+    root = ET.parse(xml_path).getroot()
+    basis = root.find(".//w:AngleBasis", ns)
+    if basis is None:
+        raise ValueError(f"{xml_path}: no Klems AngleBasis (not a Klems BSDF)")
+    lam, theta, phi = [], [], []
+    for b in basis.findall("w:AngleBasisBlock", ns):
+        th = float(b.findtext("w:Theta", namespaces=ns))
+        n = int(b.findtext("w:nPhis", namespaces=ns))
+        lo = math.radians(float(b.findtext("w:ThetaBounds/w:LowerTheta", namespaces=ns)))
+        hi = math.radians(float(b.findtext("w:ThetaBounds/w:UpperTheta", namespaces=ns)))
+        lam += [math.pi * (math.sin(hi) ** 2 - math.sin(lo) ** 2) / n] * n
+        theta += [th] * n
+        phi += [360.0 * k / n for k in range(n)]
+    out: dict[str, np.ndarray] = {"theta_deg": np.array(theta), "phi_deg": np.array(phi)}
+    n = len(lam)
+    for blk in root.findall(".//w:WavelengthDataBlock", ns):
+        direction = blk.findtext("w:WavelengthDataDirection", namespaces=ns)
+        vals = np.array(blk.findtext("w:ScatteringData", namespaces=ns).replace(",", " ").split())
+        f = vals.astype(np.float64).reshape(n, n)
+        out[direction] = f.T @ np.array(lam)
+    return out
+
+
+def _check_up(up: Sequence[float]) -> list[float]:
+    upv = [float(x) for x in up]
+    if len(upv) != 3 or not any(upv) or not all(math.isfinite(x) for x in upv):
+        raise ValueError(f"up must be a non-zero 3-vector, got {up!r}")
+    return upv
+
+
+def _check_int(name: str, v: Any, lo: int, hi: int) -> None:
+    if not (isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi):
+        raise ValueError(f"{name} {v!r}; expected an integer in {lo}..{hi}")
+
+
+def _converter(kind: str, samples_per_patch: int, resolution: int, reciprocity: bool) -> list:
+    """The bsdf2klems / bsdf2ttree command (options checked)."""
+    _check_int("samples_per_patch", samples_per_patch, 1, 1 << 20)
+    _check_int("resolution", resolution, 4, 7)
+    if kind == "klems":
+        return ["bsdf2klems", "-p", "-n", samples_per_patch]
+    if kind == "ttree":
+        return ["bsdf2ttree", "-p", "+a" if reciprocity else "-a", "-g", resolution]
+    raise ValueError(f"kind {kind!r}; expected 'klems' or 'ttree'")
+
+
+def _finish(
+    xml: bytes,
+    tmp: str,
+    folder: Path,
+    name: str,
+    kind: str,
+    sym: str,
+    up: list[float],
+    seconds: dict[str, float],
+    timeout: float,
+    note: str,
+) -> BSDFBuild:
+    """checkBSDF the XML, then write it and its ``void BSDF`` primitive atomically."""
+    from gonio.io.radiance import run_tool
+
+    Path(tmp, "out.xml").write_bytes(xml)
+    t0 = time.perf_counter()
+    check = run_tool(["checkBSDF", "out.xml"], cwd=tmp, timeout=timeout).decode()
+    seconds["checkBSDF"] = time.perf_counter() - t0
+    xml_path = atomic_write_bytes(folder / f"{name}.xml", xml)
+    rad = (
+        f"# {note}\n# up = the sample's y axis; the BSDF's front is the side the normal faces\n"
+        f"void BSDF {name}\n6 0 {xml_path.name} {up[0]:.9g} {up[1]:.9g} {up[2]:.9g} .\n0\n0\n"
+    )
+    rad_path = atomic_write_bytes(folder / f"{name}_bsdf.rad", rad.encode())
+    return BSDFBuild(xml_path, rad_path, kind, sym, seconds, check, parse_check_bsdf(check))
+
+
+def build_bsdf(
+    samples: BRDFSamples,
+    folder: str | os.PathLike,
+    sample_name: str = "gonio",
+    kind: str = "klems",
+    samples_per_patch: int = 1024,
+    resolution: int = 6,
+    reciprocity: bool = False,
+    symmetry: str | None = None,
+    up: Sequence[float] = (0.0, 1.0, 0.0),
+    negative: str = "error",
+    nproc: int = 1,
+    timeout: float = 3600.0,
+) -> BSDFBuild:
+    """Measured samples → PAB-Opto files → ``pabopto2bsdf`` → Klems or tensor tree XML.
+
+    Writes ``<folder>/pabopto/*.dat`` (:func:`write_pabopto`), then, after ``checkBSDF``
+    read the XML, ``<folder>/<sample_name>.xml`` and ``<folder>/<sample_name>_bsdf.rad``
+    (``void BSDF <sample_name>`` with the ``up`` vector: the sample's y axis in the object's
+    coordinates). The scattering interpolant stays in a temporary folder.
+
+    Parameters
+    ----------
+    kind : {"klems", "ttree"}
+        ``bsdf2klems`` (145 × 145 patch matrix) or ``bsdf2ttree`` (tensor tree; slow for a
+        campaign's table: minutes).
+    samples_per_patch : int
+        ``bsdf2klems -n`` (its default 1024; 16 is about 60 times faster).
+    resolution : int
+        ``bsdf2ttree -g``, log2 of the tree's peak resolution, 4..7.
+    reciprocity : bool
+        ``bsdf2ttree +a``: reciprocity averaging (reduces measurement noise).
+    symmetry : {"isotropic", "quadrilateral", "bilateral", "up", "anisotropic"}, optional
+        ``pabopto2bsdf -s``; default its inference, checked beforehand
+        (:func:`pabopto_symmetry`).
+    nproc : int
+        ``pabopto2bsdf -n`` (processes).
+    timeout : float
+        Seconds each program may take before it is killed.
+    """
+    from gonio.io.radiance import run_tool
+
+    conv = _converter(kind, samples_per_patch, resolution, reciprocity)
+    _check_int("nproc", nproc, 1, 1024)
+    allowed = ("isotropic", "quadrilateral", "bilateral", "up", "anisotropic")
+    if symmetry is not None and symmetry not in allowed:
+        raise ValueError(f"symmetry {symmetry!r}; expected one of {allowed}")
+    upv = _check_up(up)
+    folder = Path(folder)
+    files = write_pabopto(samples, folder / "pabopto", sample_name, negative)
+    sym = pabopto_symmetry([(t, p) for t, p, _ in incidences(samples)])
+    seconds: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="gonio_bsdf_", dir=folder) as tmp:
+        args = ["pabopto2bsdf", "-n", nproc] + (["-s", symmetry] if symmetry else [])
+        t0 = time.perf_counter()
+        sir = run_tool([*args, *(f.name for f in files)], cwd=files[0].parent, timeout=timeout)
+        seconds["pabopto2bsdf"] = time.perf_counter() - t0
+        Path(tmp, "refl.sir").write_bytes(sir)
+        t0 = time.perf_counter()
+        xml = run_tool([*conv, "refl.sir"], cwd=tmp, timeout=timeout)
+        seconds[conv[0]] = time.perf_counter() - t0
+        note = f"{SYMMETRIES[sym]} {kind} BSDF of {sample_name} from {len(files)} PAB-Opto files"
+        return _finish(xml, tmp, folder, sample_name, kind, sym, upv, seconds, timeout, note)
+
+
+def build_model_bsdf(
+    model: Any,
+    folder: str | os.PathLike,
+    name: str = "gonio",
+    kind: str = "klems",
+    samples_per_patch: int = 1024,
+    resolution: int = 6,
+    up: Sequence[float] = (0.0, 1.0, 0.0),
+    timeout: float = 3600.0,
+) -> BSDFBuild:
+    """A fitted model's BSDF XML: its exact ``.cal`` (:func:`gonio.io.radiance.cal_function`)
+    through ``bsdf2klems -f`` or ``bsdf2ttree -t3/-t4 -f``, then ``checkBSDF``.
+
+    Writes ``<folder>/<name>.xml``, ``<folder>/<name>_bsdf.rad`` and the ``.cal`` it was
+    built from (``<folder>/<name>_bsdf.cal``). ``-t3`` (isotropic tree) when the model is
+    isotropic about the normal (α_x = α_y for the Ward family, Lambert, Cook-Torrance,
+    Lafortune with C_x = C_y), ``-t4`` otherwise. Other parameters as :func:`build_bsdf`.
+    """
+    from gonio.brdf.composite import Sum
+    from gonio.io.radiance import _identifier, cal_function, run_tool
+
+    conv = _converter(kind, samples_per_patch, resolution, False)
+    if not isinstance(name, str) or not _NAME.match(name):
+        raise ValueError(f"name {name!r} must be a word (letters, digits, _ . -)")
+    upv = _check_up(up)
+    prefix = "m" + _identifier(name)
+    _, cal = cal_function(model, prefix)
+    comps = model.models if isinstance(model, Sum) else [model]
+    iso = all(_isotropic(c) for c in comps)
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"folder {str(folder)!r} is not an existing directory")
+    cal_path = atomic_write_bytes(folder / f"{name}_bsdf.cal", cal.encode())
+    if kind == "ttree":
+        conv = [conv[0], "-t3" if iso else "-t4", *conv[1:]]
+    seconds: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="gonio_bsdf_", dir=folder) as tmp:
+        t0 = time.perf_counter()
+        xml = run_tool([*conv, "-f", cal_path.name, f"{prefix}_bsdf"], cwd=folder, timeout=timeout)
+        seconds[conv[0]] = time.perf_counter() - t0
+        sym = "I" if iso else "A"
+        note = f"{kind} BSDF of the fitted {model!r}"
+        return _finish(xml, tmp, folder, name, kind, sym, upv, seconds, timeout, note)
+
+
+def _isotropic(m: Any) -> bool:
+    p = m.params
+    if "alpha_x" in p:
+        return p["alpha_x"] == p["alpha_y"]
+    if "lobes" in p:
+        return all(float(lobe[0]) == float(lobe[1]) for lobe in p["lobes"])
+    return True
