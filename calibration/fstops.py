@@ -183,6 +183,18 @@ class FStopCalibration:
         """Standard uncertainty of a corrected capture's exposure scale (relative)."""
         return self.sigma_iris / math.sqrt(max(int(n_frames), 1))
 
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FStopCalibration:
+        """Inverse of :meth:`to_dict`."""
+        return cls(
+            {float(k): float(v) for k, v in d["log_gain"].items()},
+            {float(k): float(v) for k, v in d["u_log_gain"].items()},
+            float(d["reference_stop"]),
+            float(d["sigma_iris"]),
+            int(d["n_overlaps"]),
+            float(d.get("residual_rms", 0.0)),
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (stops as strings)."""
         return {

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gonio.calibration.fstops import FStopCalibration
 from gonio.calibration.mirror import MirrorCalibration
 
 __all__ = ["CALIBRATION_FILE", "LabCalibration", "read_calibration"]
@@ -55,6 +56,9 @@ class LabCalibration:
         ...); None: the side-cars' lens.
     mirror : MirrorCalibration or None
         None: the side-cars' mirror.
+    fstops : FStopCalibration or None
+        Relative exposure of each marked stop and the iris repeatability, from the f-stop
+        ladder (:mod:`gonio.calibration.fstops`); None: the marked f-numbers.
     certificate : object or None
         The standard's certificate (``rho``, ``factor_at``, ``check_covers``,
         ``expanded_uncertainty``); None: a Lambertian standard of the side-cars'
@@ -68,6 +72,7 @@ class LabCalibration:
 
     lens: dict[str, Any] | None = None
     mirror: MirrorCalibration | None = None
+    fstops: FStopCalibration | None = None
     certificate: Any = None
     specification: dict[str, dict[str, Any]] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
@@ -110,6 +115,7 @@ class LabCalibration:
             "kind": "gonio.lab_calibration",
             "lens": self.lens,
             "mirror": None if self.mirror is None else self.mirror.to_dict(),
+            "fstops": None if self.fstops is None else self.fstops.to_dict(),
             "certificate": cert,
             "specification": self.specification,
             "info": self.info,
@@ -126,9 +132,11 @@ class LabCalibration:
 
             cert = Certificate.from_dict(cert)
         mirror = d.get("mirror")
+        fst = d.get("fstops")
         return cls(
             lens=d.get("lens"),
             mirror=None if mirror is None else MirrorCalibration.from_dict(mirror),
+            fstops=None if fst is None else FStopCalibration.from_dict(fst),
             certificate=cert,
             specification=dict(d.get("specification") or {}),
             info=dict(d.get("info") or {}),

@@ -52,6 +52,12 @@ MIRROR_ANGLES_DEG = tuple(float(a) for a in np.arange(6.0, 80.0, 8.0))
 #: board views for the lens calibration (poses from calibration.lens.board_poses)
 N_BOARD_VIEWS = 16
 
+#: the f-stop ladder: the standard through every marked stop, repeated (iris repeatability)
+LADDER_STOPS = (32.0, 22.0, 16.0, 11.0, 8.0, 5.6, 4.0, 2.8, 2.0)
+LADDER_REPEATS = 6
+#: exposure at the widest ladder stop (the others scale with the marked N²)
+LADDER_EXPOSURE_S = 0.004
+
 _CACHE: dict[str, Any] = {}
 
 
@@ -74,8 +80,10 @@ class FrontSurfaceMirror(Lambert):
 def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
     """The calibration captures of a simulated instrument (the instrument's side).
 
-    Returns ``{"board": [uint8 views], "mirror": [(theta_i, image, side-car)]}``; the spot
-    exposures keep the spot unsaturated.
+    Returns ``{"board": [uint8 views], "mirror": [(theta_i, image, side-car)], "ladder":
+    [[(image, side-car) per stop] per repeat]}``; the spot exposures keep the spot
+    unsaturated, the ladder's exposure times (scaled with the marked N²) keep the standard
+    near half the full well at every stop.
     """
     from gonio.calibration.lens import board_poses, make_board, render_board_view
 
@@ -91,7 +99,15 @@ def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
         img, meta = inst.capture(target, math.radians(a), 0.0, exposure=2e-5, f_number=32.0,
                                  rng=int(gen.integers(2**62)))  # fmt: skip
         spots.append((math.radians(a), img, meta))
-    return {"board": views, "mirror": spots}
+    ladder = []
+    for _ in range(LADDER_REPEATS):
+        frames = []
+        for n in LADDER_STOPS:  # the standard at normal incidence, ~half the full well
+            t = LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2
+            frames.append(inst.capture("standard", 0.0, 0.0, exposure=t, f_number=n,
+                                       rng=int(gen.integers(2**62))))  # fmt: skip
+        ladder.append(frames)
+    return {"board": views, "mirror": spots, "ladder": ladder}
 
 
 def calibrate(
@@ -143,11 +159,22 @@ def calibrate(
         dirs.append(to_vector(theta_i, arm_azimuth + math.pi))
     nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
     mirror = fit_mirror(uv, dirs, lens, nominal, method=method)
+    fstops = None
+    if captures.get("ladder"):
+        from gonio.calibration.fstops import calibrate_fstops, overlap_ratios
+        from gonio.calibration.reduce import Capture
+
+        ov = [o for rep in captures["ladder"] for o in overlap_ratios(Capture(list(rep)))]
+        fstops = calibrate_fstops(ov)
     info = {"lens_rms_px": lens_cal.rms, "lens_views": lens_cal.n_views,
             "mirror_rms_deg": mirror.rms_deg, "mirror_points": mirror.n_points}  # fmt: skip
+    pitch = captures["mirror"][0][2].get("sensor", {}).get("pixel_pitch_m")
+    if pitch is not None:  # the camera's data sheet
+        info["pixel_pitch_m"] = float(pitch)
     return LabCalibration(
         lens=lens_cal.to_dict(),
         mirror=mirror,
+        fstops=fstops,
         certificate=certificate,
         specification={k: dict(v) for k, v in (specification or {}).items()},
         info=info,
