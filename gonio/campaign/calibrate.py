@@ -77,6 +77,21 @@ class FrontSurfaceMirror(Lambert):
         return wi * np.array([-1.0, -1.0, 1.0]), np.full(wi.shape[:-1], self._r)
 
 
+def _board_views(inst: Any, seed: int) -> list[np.ndarray]:
+    from gonio.calibration.lens import board_poses, make_board, render_board_view
+
+    key = "board/" + _key(inst, lens_only=True) + f"/{seed}"
+    views = _CACHE.get(key)
+    if views is None:
+        board = make_board()
+        poses = board_poses(inst.lens, board, N_BOARD_VIEWS, distance=0.2,
+                            max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
+        views = [render_board_view(inst.lens, board, r, t, supersample=1, px_per_square=60)
+                 for r, t in poses]  # fmt: skip
+        _CACHE[key] = views
+    return views
+
+
 def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
     """The calibration captures of a simulated instrument (the instrument's side).
 
@@ -85,13 +100,7 @@ def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
     unsaturated, the ladder's exposure times (scaled with the marked N²) keep the standard
     near half the full well at every stop.
     """
-    from gonio.calibration.lens import board_poses, make_board, render_board_view
-
-    board = make_board()
-    poses = board_poses(inst.lens, board, N_BOARD_VIEWS, distance=0.2,
-                        max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
-    views = [render_board_view(inst.lens, board, r, t, supersample=1, px_per_square=60)
-             for r, t in poses]  # fmt: skip
+    views = _board_views(inst, seed)
     target = FrontSurfaceMirror()
     spots = []
     gen = np.random.default_rng(seed)
@@ -148,7 +157,14 @@ def calibrate(
     from gonio.calibration.radiometry import SensorModel
     from gonio.geometry import to_vector
 
-    lens_cal = calibrate_fisheye(captures["board"], make_board())
+    h = hashlib.sha256()
+    for v in captures["board"]:
+        h.update(np.ascontiguousarray(v).tobytes())
+    lens_cal = _CACHE.get("lens/" + h.hexdigest())
+    if lens_cal is None:  # the same views give the same calibration
+        lens_cal = _CACHE["lens/" + h.hexdigest()] = calibrate_fisheye(
+            captures["board"], make_board()
+        )
     lens = lens_cal.lens
     uv, dirs = [], []
     for theta_i, img, meta in captures["mirror"]:
@@ -181,8 +197,14 @@ def calibrate(
     )
 
 
-def _key(inst: Any) -> str:
-    d = inst.to_dict()
+def _key(inst: Any, lens_only: bool = False) -> str:
+    """Identity of the physical instrument (its description, effects and instrument seed:
+    the simulator's side, as a laboratory knows which instrument it calibrated)."""
+    d: dict[str, Any] = {"lens": inst.lens.to_dict()}
+    if not lens_only:
+        d.update(inst.to_dict())
+        d["effects"] = dict(getattr(inst, "effects", {}) or {})
+        d["instrument_seed"] = getattr(inst, "instrument_seed", 0)
     return hashlib.sha256(json.dumps(d, sort_keys=True, default=repr).encode()).hexdigest()[:20]
 
 
@@ -210,8 +232,9 @@ def laboratory_calibration(
     cal = _CACHE.get(key)
     if cal is None:
         cal = calibrate(take_captures(inst, seed=seed), nominal_mirror, method=method)
-        if len(_CACHE) > 32:
-            _CACHE.clear()
+        if len(_CACHE) > 64:
+            for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
+                _CACHE.pop(k)
         _CACHE[key] = cal
     from dataclasses import replace
 
