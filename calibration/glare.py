@@ -36,7 +36,7 @@ import numpy as np
 from gonio.calibration.radiometry import SensorModel, exposure_scale
 from numpy.typing import NDArray
 
-__all__ = ["GlareOffset", "dark_region", "glare_offset"]
+__all__ = ["GlareOffset", "dark_region", "glare_offset", "veil", "veil_shape"]
 
 #: fewest dark pixels a glare estimate uses
 MIN_DARK_PIXELS = 200
@@ -114,4 +114,44 @@ def glare_offset(capture: Any, background: Any, dark: NDArray[np.int64]) -> Glar
     d = (c - b)[idx][use]
     if d.size == 0:
         return GlareOffset(0.0, 0.0, 0)
-    return GlareOffset(float(d.mean()), float(d.std() / math.sqrt(d.size)), int(d.size))
+    # the median: a dark pixel that the sample does light (a footprint moved by the sample's
+    # height) is an outlier, not part of the veil
+    sig = 1.2533 * float(d.std()) / math.sqrt(d.size)
+    return GlareOffset(float(np.median(d)), sig, int(d.size))
+
+
+def veil_shape(
+    background: Any, in_field: NDArray[np.bool_], field_angle: NDArray[np.float64], rings: int = 48
+) -> NDArray[np.float64]:
+    """The veil's relative distribution over the image (flat, mean 1 over the image circle).
+
+    A veil is spread like the camera's response (the fisheye's relative illumination falls
+    towards the edge of the field); the background image — the room's uniform ambient light
+    through the dome — shows that response. Its median over rings of equal field angle (the
+    beam's glow on the dome is a local outlier) gives the shape.
+    """
+    b, ok = _longest_signal(background)
+    field = np.asarray(in_field, dtype=bool).ravel()
+    th = np.asarray(field_angle, dtype=np.float64).ravel()
+    use = field & ok
+    out = np.zeros(b.shape)
+    if not use.any():
+        return out
+    edges = np.linspace(0.0, float(th[use].max()) + 1e-9, rings + 1)
+    ring = np.clip(np.searchsorted(edges, th, side="right") - 1, 0, rings - 1)
+    med = np.array([np.median(b[use & (ring == k)]) if (use & (ring == k)).any() else np.nan
+                    for k in range(rings)])  # fmt: skip
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    good = np.isfinite(med) & (med > 0)
+    if not good.any():
+        out[field] = 1.0
+        return out
+    prof = np.interp(th, centres[good], med[good])
+    out[field] = prof[field]
+    return out / float(out[field].mean())
+
+
+def veil(offset: GlareOffset, shape: NDArray[np.float64], dark: NDArray[np.int64]) -> NDArray:
+    """The per-pixel veil (flat) whose mean over the dark pixels is the measured offset."""
+    m = float(shape[np.asarray(dark)].mean())
+    return shape * (offset.value / m if m > 0 else 0.0)

@@ -628,9 +628,9 @@ def reduce_selected(
     eq. 2 use the certified BRDF ``ρ R / π`` of the standard at each pixel's direction (in the
     standard's frame) instead of a Lambertian ``ρ / π`` (:func:`standard_factor`); pixels whose
     viewing angle lies beyond the certified range are dropped, an incidence beyond it is a
-    ``ValueError``. ``glare`` = ``(measured, standard)`` veil offsets per unit exposure scale
-    (:func:`gonio.calibration.glare.glare_offset`) are subtracted from the two signals before
-    eq. 2.
+    ``ValueError``. ``glare`` = ``(measured, standard)`` veils per unit exposure scale
+    (scalars or flat per-pixel images, :func:`gonio.calibration.glare.veil`) are subtracted
+    from the two signals before eq. 2.
     """
     t0 = time.perf_counter()
     if certificate is not None and rho_standard is None:
@@ -699,10 +699,15 @@ def reduce_selected(
     num_r = mr["m"].value[0] - mr["b"].value[0]
     den_r = mr["s"].value[0] - mr["b"].value[0]
     if glare is not None:  # the veils of the sample's and the standard's own light
-        g_m, g_s = (float(x) for x in glare)
-        num_r, den_r = num_r - g_m, den_r - g_s
-        ms["m"].value -= g_m
-        ms["s"].value -= g_s
+        g_m, g_s = (np.asarray(x, dtype=np.float64) for x in glare)
+        if g_m.ndim:  # per-pixel veils (flat images)
+            num_r, den_r = num_r - g_m[region], den_r - g_s[region]
+            ms["m"].value -= g_m[sel]
+            ms["s"].value -= g_s[sel]
+        else:
+            num_r, den_r = num_r - g_m, den_r - g_s
+            ms["m"].value -= g_m
+            ms["s"].value -= g_s
     ratio_at = (nb_mean(num_r, ok_all)[None, :], nb_mean(den_r, ok_all)[None, :])
     t2 = time.perf_counter()
     refl = eq2(ms["m"], ms["s"], ms["b"], rho_standard, threshold=threshold, ratio_at=ratio_at,

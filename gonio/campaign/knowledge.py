@@ -126,7 +126,7 @@ def reduce_incidence(
     select : mapping, optional
         ``reduce_selected``'s thinning options.
     """
-    from gonio.calibration.glare import dark_region, glare_offset
+    from gonio.calibration.glare import dark_region, glare_offset, veil, veil_shape
     from gonio.calibration.reduce import Capture, load_lens, pixel_geometry, reduce_selected
 
     corr = set(check_corrections(corrections))
@@ -147,7 +147,10 @@ def reduce_incidence(
         lens = load_lens(opts["lens"], w, h)
         _, gvalid = pixel_geometry(lens, opts["mirror"], opts.get("method", "eq3"))
         dark = dark_region(std, bg, gvalid)
-    g_s = glare_offset(std, bg, dark) if dark is not None else None
+    g_s = None
+    if dark is not None:
+        shape = veil_shape(bg, gvalid, lens.field_angle(lens.pixel_grid().reshape(-1, 2)))
+        g_s = glare_offset(std, bg, dark)
     out = []
     for rot, frames in measured.items():
         meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames)), fst)
@@ -156,7 +159,7 @@ def reduce_incidence(
                                 "n_frames_standard": n_std}  # fmt: skip
         if g_s is not None:
             g_m = glare_offset(meas, bg, dark)
-            kw["glare"] = (g_m.value, g_s.value)
+            kw["glare"] = (veil(g_m, shape, dark), veil(g_s, shape, dark))
             info["glare"] = {"measured": g_m.value, "standard": g_s.value, "n_dark": g_m.n}
         seed = None if seeds is None else seeds.get(rot)
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
