@@ -56,10 +56,13 @@ __all__ = [
     "capture_groups",
     "certificate_shapes",
     "certificate_terms",
+    "direction_fields",
+    "direction_terms",
     "exposure_terms",
-    "geometry_terms",
     "glare_term",
     "mean_over_pixels",
+    "reillumination_term",
+    "tilt_terms",
 ]
 
 
@@ -199,60 +202,168 @@ def _unit(w: NDArray) -> NDArray:
     return w / np.linalg.norm(w, axis=-1, keepdims=True)
 
 
-def geometry_terms(
-    samples: Any, model: Any, lens: Any, mirror_cal: Any, *, grid: int = 48
-) -> list[Perturbation]:
-    """The calibrated dome parameters' terms (one per principal component of their
-    covariance, ``u = 1`` standard deviation along it).
+#: cells per side of the equal-area square in which direction changes are averaged
+GRID = 48
+#: realisations of a random dome figure averaged for its term (Monte Carlo of its model)
+FIGURE_REALISATIONS = 4
 
-    Each component's change of the pixels' dome-frame reflection directions is averaged in
-    cells of the equal-area square (``grid²`` cells) and looked up at each sample's dome
-    direction.
-    """
-    from gonio.calibration.reduce import pixel_geometry
+
+def _cell(w: NDArray, grid: int = GRID) -> NDArray[np.int64]:
     from gonio.calibration.thinning import hemisphere_to_square
 
-    if mirror_cal is None or lens is None:
+    q = np.clip((hemisphere_to_square(w) + 1.0) / 2.0, 0.0, 1.0 - 1e-12)
+    return (q[:, 0] * grid).astype(np.int64) * grid + (q[:, 1] * grid).astype(np.int64)
+
+
+def _cell_means(w0: NDArray, w1: NDArray, grid: int = GRID) -> NDArray:
+    """Mean change ``w1 − w0`` of dome directions per cell (grid², 3)."""
+    pc = _cell(w0, grid)
+    d = w1 - w0
+    cnt = np.bincount(pc, minlength=grid * grid)
+    out = np.stack([np.bincount(pc, d[:, k], grid * grid) for k in range(3)], 1)
+    return out / np.maximum(cnt, 1)[:, None]
+
+
+def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
+    """The direction-change fields of the geometric terms, per unit of each (cached on
+    ``cal``): ``(name, u, unit, cell means (grid², 3), corrected)``.
+
+    * ``geometry[j]``: the mirror calibration's principal components (1 σ each);
+    * ``lens_scale``: the lens calibration's focal-length uncertainty (both axes, 1 σ);
+    * ``dome_figure[k]``: random dome figures of the specified RMS slope error
+      (:func:`gonio.simulator.lbl_effects.slope_field`, realisations that are not the
+      instrument's), each with ``u = 1/√K`` so that their sum of squares is the mean.
+    """
+    got = cal.__dict__.get("_direction_fields")
+    if got is not None:
+        return got
+    from gonio.calibration.reduce import pixel_geometry
+
+    out: list[tuple[str, float, str, NDArray, bool]] = []
+    lens = cal.lens_model()
+    mc = cal.mirror
+    if lens is None or mc is None:
+        cal.__dict__["_direction_fields"] = out
+        return out
+    wo0, ok0 = pixel_geometry(lens, mc.geometry, mc.method)
+    base = ok0.ravel()
+
+    def field(lens1: Any, geo1: Any) -> NDArray:
+        wo1, ok1 = pixel_geometry(lens1, geo1, mc.method)
+        both = base & ok1.ravel()
+        return _cell_means(wo0.reshape(-1, 3)[both], wo1.reshape(-1, 3)[both])
+
+    vals, vecs = np.linalg.eigh(np.asarray(mc.covariance, dtype=np.float64))
+    for j in range(vals.size):
+        if vals[j] > 0:
+            g = mc.geometry
+            for name, dv in zip(mc.names, vecs[:, j] * math.sqrt(vals[j])):
+                g = _moved(g, name, dv)
+            out.append((f"geometry[{j}]", 1.0, "σ", field(lens, g), True))
+    u_f = float((cal.lens or {}).get("fx_u_rel", 0.0))
+    if u_f > 0:
+        from dataclasses import replace
+
+        scaled = replace(lens, fx=lens.fx * (1 + u_f), fy=lens.fy * (1 + u_f))
+        out.append(("lens_scale", u_f, "1", field(scaled, mc.geometry) / u_f, True))
+    slope = spec_rms(cal.specification.get("dome_slope_error"))
+    if slope > 0:
+        out += _figure_fields(lens, mc, wo0, base, slope)
+    cal.__dict__["_direction_fields"] = out
+    return out
+
+
+def _figure_fields(lens: Any, mc: Any, wo0: NDArray, base: NDArray, slope: float) -> list:
+    from gonio.simulator import lbl_effects as le
+    from gonio.simulator.optics import Mirror
+
+    g = mc.geometry
+    mirror = Mirror(g.kind, g.radius, g.half_separation, 0.5, 0.45)
+    uv = lens.pixel_grid().reshape(-1, 2)
+    dirs = lens.unproject(uv[base])
+    r = max(mirror.semi_axes)
+    out = []
+    k_n = FIGURE_REALISATIONS
+    for k in range(k_n):
+        seed = 2**40 + k  # a realisation of the dome-figure model, not this instrument's
+
+        def sl(p, seed=seed):
+            return le.slope_field(p, 1.0, r, seed)
+
+        tr = le.trace_perturbed(mirror, dirs, sl, 0.0)
+        ok = tr["valid"]
+        w0 = wo0.reshape(-1, 3)[base][ok]
+        out.append((f"dome_figure[{k}]", slope / math.sqrt(k_n), "rad",
+                    _cell_means(w0, tr["wo"][ok]), False))  # fmt: skip
+    return out
+
+
+def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
+    """Each direction field of :func:`direction_fields` as the samples' ``δy`` (per unit):
+    ``f(wo + δwo) − f(wo)`` at each sample's dome direction (an arm at azimuth 0)."""
+    fields = direction_fields(cal)
+    if not fields:
         return []
-    cov = np.asarray(mirror_cal.covariance, dtype=np.float64)
-    vals, vecs = np.linalg.eigh(cov)
-    wo0, ok0 = pixel_geometry(lens, mirror_cal.geometry, mirror_cal.method)
-    # the samples' dome directions (arm at azimuth 0: rotation = -φi)
     rot = -samples.phi_i
     w_s = samples.wo
     c, s = np.cos(rot), np.sin(rot)
     w_dome = np.stack([c * w_s[:, 0] - s * w_s[:, 1], s * w_s[:, 0] + c * w_s[:, 1], w_s[:, 2]], 1)
-
-    def cell(w: NDArray) -> NDArray:
-        q = np.clip((hemisphere_to_square(w) + 1.0) / 2.0, 0.0, 1.0 - 1e-12)
-        return (q[:, 0] * grid).astype(np.int64) * grid + (q[:, 1] * grid).astype(np.int64)
-
-    sample_cell = cell(w_dome)
+    cells = _cell(w_dome)
     f0 = model(samples.wi, w_s)
     out = []
-    for j in range(vals.size):
-        if not vals[j] > 0:
-            continue
-        step = vecs[:, j] * math.sqrt(vals[j])
-        g = mirror_cal.geometry
-        for name, dv in zip(mirror_cal.names, step):
-            g = _moved(g, name, dv)
-        wo1, ok1 = pixel_geometry(lens, g, mirror_cal.method)
-        both = (ok0 & ok1).ravel()
-        a0 = wo0.reshape(-1, 3)[both]
-        d = wo1.reshape(-1, 3)[both] - a0
-        pc = cell(a0)
-        cnt = np.bincount(pc, minlength=grid * grid)
-        mean_d = np.stack([np.bincount(pc, d[:, k], grid * grid) for k in range(3)], 1)
-        mean_d /= np.maximum(cnt, 1)[:, None]
-        dd = mean_d[sample_cell]
-        w1 = _unit(w_dome + dd)
+    for name, u, unit, means, corrected in fields:
+        w1 = _unit(w_dome + means[cells])
         back = np.stack([c * w1[:, 0] + s * w1[:, 1], -s * w1[:, 0] + c * w1[:, 1], w1[:, 2]], 1)
-        out.append(
-            Perturbation(f"geometry[{j}]", 1.0, "σ", model(samples.wi, back) - f0,
-                         note="mirror calibration covariance, principal component")
-        )  # fmt: skip
+        note = "direction change of the calibrated geometry" if corrected else "dome figure"
+        out.append(Perturbation(name, u, unit, model(samples.wi, back) - f0,
+                                corrected=corrected, note=note))  # fmt: skip
     return out
+
+
+def tilt_terms(samples: Any, model: Any, tilt_rms: float) -> list[Perturbation]:
+    """An unknown tilt of the sample's normal (RMS ``tilt_rms`` rad, random azimuth): two
+    components, about the sample's x and y axes, each ``u = tilt_rms/√2``.
+
+    The sample sees ``T wi`` and ``T wo`` and is lit by ``cos θi'`` instead of the standard's
+    ``cos θi``: ``y = f(T wi, T wo) cos θi' / cos θi``; ``δy`` per radian by a difference.
+    """
+    if tilt_rms <= 0:
+        return []
+    wi, wo = samples.wi, samples.wo
+    f0 = model(wi, wo)
+    h = 1e-3
+    out = []
+    for axis, name in ((0, "sample_tilt[x]"), (1, "sample_tilt[y]")):
+        ca, sa = math.cos(h), math.sin(h)
+        if axis == 0:
+            rm = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+        else:
+            rm = np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]])
+        wi1, wo1 = wi @ rm.T, wo @ rm.T
+        cos_ratio = np.clip(wi1[:, 2], 0.0, None) / np.maximum(wi[:, 2], 1e-12)
+        dy = (model(wi1, wo1) * cos_ratio - f0) / h
+        out.append(Perturbation(name, tilt_rms / math.sqrt(2.0), "rad", dy, corrected=False,
+                                note="sample tilt, specification"))  # fmt: skip
+    return out
+
+
+def reillumination_term(
+    samples: Any, model: Any, r: float, rho_standard: float, lit_fraction: NDArray
+) -> list[Perturbation]:
+    """Light the dome returns to the sample (fraction ``r`` of what it reflects): an extra
+    diffuse radiance ``r A a(θi) a(θo) / π`` on the sample and ``r A ρ² / π`` on the
+    standard (``a`` the directional albedo, ``A`` the lit fraction of the sample disk), so
+    ``δy = A [a(θi) a(θo) / π − y ρ]`` per unit ``r`` (uncorrected, specification)."""
+    if r <= 0:
+        return []
+    th = np.radians(np.linspace(0.0, 89.0, 12))
+    wi = np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], -1)
+    a = np.asarray(model.albedo(wi), dtype=np.float64)
+    ai = np.interp(samples.theta_i, th, a)
+    ao = np.interp(samples.theta_o, th, a)
+    dy = lit_fraction * (ai * ao / math.pi - samples.value * rho_standard)
+    return [Perturbation("reillumination", r, "1", dy, corrected=False,
+                         note="dome -> lens front -> sample, specification")]  # fmt: skip
 
 
 def _moved(g: Any, name: str, dv: float) -> Any:

@@ -127,6 +127,7 @@ def calibrate(
     specification: Mapping[str, Mapping[str, Any]] | None = None,
     method: str = "eq3",
     arm_azimuth: float = 0.0,
+    design: Mapping[str, float] | None = None,
 ):
     """The laboratory's calibration from its captures (the laboratory's side).
 
@@ -145,6 +146,8 @@ def calibrate(
         The angle recovery the reduction uses.
     arm_azimuth : float
         Dome azimuth of the source arm's plane (radians; the design value).
+    design : mapping, optional
+        Other design values the budget uses (``sample_radius``, ``spot_radius``, metres).
 
     Returns
     -------
@@ -165,6 +168,8 @@ def calibrate(
         lens_cal = _CACHE["lens/" + h.hexdigest()] = calibrate_fisheye(
             captures["board"], make_board()
         )
+    lens_rec = lens_cal.to_dict()
+    lens_rec["fx_u_rel"] = _split_half_focal(captures["board"], lens_cal)
     lens = lens_cal.lens
     uv, dirs = [], []
     for theta_i, img, meta in captures["mirror"]:
@@ -187,14 +192,38 @@ def calibrate(
     pitch = captures["mirror"][0][2].get("sensor", {}).get("pixel_pitch_m")
     if pitch is not None:  # the camera's data sheet
         info["pixel_pitch_m"] = float(pitch)
+    if design:
+        info["design"] = dict(design)
     return LabCalibration(
-        lens=lens_cal.to_dict(),
+        lens=lens_rec,
         mirror=mirror,
         fstops=fstops,
         certificate=certificate,
         specification={k: dict(v) for k, v in (specification or {}).items()},
         info=info,
     )
+
+
+def _split_half_focal(views: list, full: Any) -> float:
+    """Relative standard uncertainty of the calibrated focal length: half the difference of
+    the calibrations on the even and the odd views (each half has √2 times the full set's
+    error), at least 2e-4 (cached with the views)."""
+    from gonio.calibration.lens import calibrate_fisheye, make_board
+
+    h = hashlib.sha256(b"split")
+    for v in views:
+        h.update(np.ascontiguousarray(v).tobytes())
+    key = "lens/" + h.hexdigest()
+    got = _CACHE.get(key)
+    if got is None:
+        try:
+            a = calibrate_fisheye(views[0::2], make_board()).lens.fx
+            b = calibrate_fisheye(views[1::2], make_board()).lens.fx
+            got = max(abs(a - b) / (2.0 * full.lens.fx), 2e-4)
+        except ValueError:  # too few usable views in a half
+            got = 1e-3
+        _CACHE[key] = got
+    return float(got)
 
 
 def _key(inst: Any, lens_only: bool = False) -> str:
@@ -231,7 +260,10 @@ def laboratory_calibration(
     key = _key(inst) + f"/{method}/{seed}"
     cal = _CACHE.get(key)
     if cal is None:
-        cal = calibrate(take_captures(inst, seed=seed), nominal_mirror, method=method)
+        design = {"sample_radius": float(inst.sample_radius),
+                  "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
+        cal = calibrate(take_captures(inst, seed=seed), nominal_mirror, method=method,
+                        design=design)  # fmt: skip
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)

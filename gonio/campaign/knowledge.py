@@ -203,9 +203,14 @@ def campaign_budget(
                 wo, ok = pixel_geometry(lens, cal.mirror.geometry, cal.mirror.method)
                 terms += bt.glare_term(samples, model, wo[ok], u, glare_done)
         if "geometry" in corr:
-            terms += bt.geometry_terms(samples, model, cal.lens_model(), cal.mirror)
+            terms += bt.direction_terms(samples, model, cal)
         sigma = _blur_sigma(cal)
         terms += bt.blur_term(samples, model, sigma)
+        terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))
+        r = bt.spec_rms(spec.get("reillumination"))
+        if r > 0:
+            terms += bt.reillumination_term(samples, model, r, _rho_std(cal, samples),
+                                            _lit_fraction(cal, samples))  # fmt: skip
     sens = Sensitivity(result, samples) if terms else None
     return build_budget(result, samples, terms, sensitivity=sens, k=k)
 
@@ -234,19 +239,34 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
     return bt.exposure_terms(samples, u, "exposure(uncorrected)") if u > 0 else []
 
 
-def _blur_sigma(cal: Any) -> float:
-    """Angular RMS blur (rad) the specification implies: pixel area (√(fill/12) px) and
-    diffraction (0.42 λ N on the sensor, at f/4), at the calibrated lens scale."""
-    lens = cal.lens_model()
-    if lens is None:
-        return 0.0
-    spec = cal.specification
-    from gonio.campaign.budget_terms import spec_rms
+def _rho_std(cal: Any, samples: Any) -> float:
+    if cal.certificate is not None:
+        return float(cal.certificate.rho)
+    return float(samples.metadata.get("rho_standard", 0.99))
 
-    fill = spec_rms(spec.get("pixel_fill"))
-    lam = spec_rms(spec.get("diffraction_wavelength")) * 1e-9
+
+def _lit_fraction(cal: Any, samples: Any) -> np.ndarray:
+    """The beam footprint's share of the sample disk, ``min(r_spot² / (r_s² cos θi), 1)``,
+    from the design's spot and sample radii."""
+    d = cal.info.get("design", {})
+    rs, rspot = float(d.get("sample_radius", 0.008)), float(d.get("spot_radius", 0.003))
+    return np.minimum(rspot**2 / (rs**2 * np.maximum(np.cos(samples.theta_i), 1e-3)), 1.0)
+
+
+def _blur_sigma(cal: Any, f_number: float = 5.6) -> float:
+    """Angular RMS blur (rad) the specification implies at a typical working stop: the
+    simulator's point-spread model (pixel area, diffraction, defocus;
+    :func:`gonio.simulator.lbl_effects.psf_sigma_px`) at the specified magnitudes, over the
+    calibrated lens's pixels per radian."""
+    lens = cal.lens_model()
     pitch = float(cal.info.get("pixel_pitch_m", 0.0))
-    if not pitch > 0:
+    if lens is None or not pitch > 0:
         return 0.0
-    px2 = fill / 12.0 + (0.42 * lam * 4.0 / pitch) ** 2
-    return math.sqrt(px2) / float(lens.fx)
+    from gonio.campaign.budget_terms import spec_rms
+    from gonio.simulator.lbl_effects import psf_sigma_px
+
+    mags = {k: spec_rms(cal.specification.get(k))
+            for k in ("pixel_fill", "diffraction_wavelength", "focus_error")}  # fmt: skip
+    radius = float(cal.mirror.geometry.radius) if cal.mirror is not None else 0.15
+    px = psf_sigma_px(f_number, mags, pitch, float(lens.fx), 0.5 * radius)
+    return px / float(lens.fx)
