@@ -717,8 +717,9 @@ def reduce_selected(
         wo_std = wo_dome.reshape(-1, 3)[sel]
         fac, covered = standard_factor(certificate, standard, theta_i, wo_std)
         keep = keep & covered
-        refl.value[0] = np.where(covered, refl.value[0] / fac, 0.0)
-        refl.sigma[0] = np.where(covered, refl.sigma[0] / fac, 0.0)
+        # eq. 2's standard is ρR/π, not ρ/π: the ratio times the certified factor
+        refl.value[0] = np.where(covered, refl.value[0] * fac, 0.0)
+        refl.sigma[0] = np.where(covered, refl.sigma[0] * fac, 0.0)
     if not keep.any():
         raise ValueError(
             f"no selected pixel survived eq. 2 masking (θi {math.degrees(theta_i):.2f}°, "
