@@ -43,6 +43,7 @@ __all__ = [
     "FrontSurfaceMirror",
     "calibrate",
     "laboratory_calibration",
+    "specification",
     "take_captures",
 ]
 
@@ -202,6 +203,18 @@ def calibrate(
         specification={k: dict(v) for k, v in (specification or {}).items()},
         info=info,
     )
+
+
+def specification(preset: str) -> dict[str, dict[str, Any]]:
+    """The maker's statement of a build: each effect of the preset that is not zero, as
+    ``{"typical", "spread", "unit"}`` (:data:`gonio.simulator.effects.PRESETS`); what a
+    laboratory knows of its instrument before calibrating it."""
+    from gonio.simulator.effects import EFFECTS, PRESETS
+
+    if preset not in PRESETS:
+        raise ValueError(f"preset {preset!r} is unknown; expected one of {', '.join(PRESETS)}")
+    return {k: {"typical": d.typical, "spread": d.spread, "unit": EFFECTS[k].unit}
+            for k, d in PRESETS[preset].items() if d.typical or d.spread}  # fmt: skip
 
 
 def _split_half_focal(views: list, full: Any) -> float:

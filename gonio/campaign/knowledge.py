@@ -45,11 +45,14 @@ __all__ = [
 #: the corrections a laboratory applies (each ablatable)
 CORRECTIONS = ("geometry", "standard", "exposure", "glare")
 
-#: side-car fields a real instrument writes (everything else is the simulator's truth)
+#: side-car fields a real instrument writes (everything else is the simulator's truth):
+#: the exposure and the marked f-number, the commanded incidence and rotation, the campaign
+#: clock, the nominal optics (``lens``, ``mirror``: the design, which the simulator's
+#: side-car records instead of its imperfect instrument) and the standard's certified ρ
 SIDECAR_FIELDS = frozenset({
     "exposure_s", "f_number", "theta_i", "phi_i", "sample_rotation", "sample", "seed",
     "noise", "binning", "band", "shape", "dtype", "units", "frame", "instrument", "bracket",
-    "filter_nm", "filter_index", "time_s", "rho_standard",
+    "filter_nm", "filter_index", "time_s", "clock_s", "rho_standard", "lens", "mirror",
 })  # fmt: skip
 
 #: the camera's read-out parameters a side-car carries (data sheet / EMVA 1288 figures)
@@ -97,7 +100,7 @@ def reduce_incidence(
     measured: Mapping[float, Sequence[Any]],
     cal: Any,
     *,
-    nominal: Mapping[str, Any],
+    nominal: Mapping[str, Any] | None = None,
     corrections: Iterable[str] | None = None,
     seeds: Mapping[float, int] | None = None,
     debias: bool = False,
@@ -114,9 +117,10 @@ def reduce_incidence(
         Sample rotation (degrees) -> its frames.
     cal : LabCalibration or None
         None: no calibration (the nominal design is used).
-    nominal : mapping
+    nominal : mapping, optional
         The instrument's design: ``lens`` (a lens dict or FisheyeLens) and ``mirror`` (a
         mirror dict); used where a correction is off or ``cal`` lacks the knowledge.
+        Default: the nominal optics the standard's side-car records.
     corrections : iterable of str, optional
         Of :data:`CORRECTIONS` (default all); those whose knowledge ``cal`` lacks are skipped.
     seeds : mapping, optional
@@ -133,6 +137,8 @@ def reduce_incidence(
     std = Capture(laboratory_view(standard))
     bg = Capture(laboratory_view(background))
     opts: dict[str, Any] = dict(select or {})
+    if nominal is None:
+        nominal = {"lens": std.meta.get("lens"), "mirror": std.meta.get("mirror")}
     opts["lens"], opts["mirror"] = nominal["lens"], nominal["mirror"]
     if cal is not None and "geometry" in corr:
         geo = cal.reduction_options()
@@ -163,6 +169,7 @@ def reduce_incidence(
             info["glare"] = {"measured": g_m.value, "standard": g_s.value, "n_dark": g_m.n}
         seed = None if seeds is None else seeds.get(rot)
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
+        info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
         out.append((red.samples, info))
     return out
 
