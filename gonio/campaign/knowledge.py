@@ -155,7 +155,7 @@ def reduce_incidence(
         dark = dark_region(std, bg, gvalid)
     g_s = None
     if dark is not None:
-        shape = veil_shape(bg, gvalid, lens.field_angle(lens.pixel_grid().reshape(-1, 2)))
+        shape = veil_shape(bg, gvalid, _field_angle(lens))
         g_s = glare_offset(std, bg, dark)
     out = []
     for rot, frames in measured.items():
@@ -172,6 +172,24 @@ def reduce_incidence(
         info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
         out.append((red.samples, info))
     return out
+
+
+_FIELD_ANGLES: dict[str, np.ndarray] = {}
+
+
+def _field_angle(lens: Any) -> np.ndarray:
+    """Field angle of every pixel (flat), cached per lens (the Kannala-Brandt inverse of a
+    640 x 480 grid takes a second)."""
+    import json
+
+    key = json.dumps(lens.to_dict(), sort_keys=True)
+    got = _FIELD_ANGLES.get(key)
+    if got is None:
+        if len(_FIELD_ANGLES) > 8:
+            _FIELD_ANGLES.clear()
+        got = _FIELD_ANGLES[key] = lens.field_angle(lens.pixel_grid().reshape(-1, 2)).ravel()
+        got.setflags(write=False)
+    return got
 
 
 def campaign_budget(
