@@ -76,11 +76,11 @@ def check_corrections(corrections: Iterable[str] | None) -> tuple[str, ...]:
 def laboratory_view(frames: Sequence[tuple[Any, Mapping[str, Any]]]) -> list[tuple[Any, dict]]:
     """The frames with side-cars cut down to what a real instrument records."""
     out = []
-    for img, meta in frames:
-        m = {k: v for k, v in meta.items() if k in SIDECAR_FIELDS}
-        sensor = meta.get("sensor")
-        if isinstance(sensor, Mapping):
-            m["sensor"] = {k: v for k, v in sensor.items() if k in SENSOR_FIELDS}
+    for img, meta in frames:  # only the kept fields are read (a test guards the others)
+        m = {k: meta[k] for k in meta if k in SIDECAR_FIELDS}
+        if "sensor" in meta and isinstance(meta["sensor"], Mapping):
+            sensor = meta["sensor"]
+            m["sensor"] = {k: sensor[k] for k in sensor if k in SENSOR_FIELDS}
         out.append((img, m))
     return out
 
