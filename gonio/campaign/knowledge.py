@@ -162,7 +162,9 @@ def reduce_incidence(
         meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames)), fst)
         kw = dict(opts)
         info: dict[str, Any] = {"rotation_deg": float(rot), "n_frames": n_meas,
-                                "n_frames_standard": n_std}  # fmt: skip
+                                "n_frames_standard": n_std,
+                                "stops": [float(m["f_number"]) for _, m in frames],
+                                "stops_standard": [float(m["f_number"]) for _, m in standard]}  # fmt: skip
         if g_s is not None:
             g_m = glare_offset(meas, bg, dark)
             kw["glare"] = (veil(g_m, shape, dark), veil(g_s, shape, dark))
@@ -249,12 +251,10 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
         iris = cal.fstops.sigma_iris
         u = math.hypot(iris / math.sqrt(m), flicker)
         terms = bt.exposure_terms(samples, u)
-        table = np.array([v for v in cal.fstops.u_log_gain.values() if v > 0])
-        if table.size:  # the ladder's own uncertainty: the standard's stop vs the sample's
-            terms.append(
-                bt.Perturbation("exposure_table", float(math.sqrt(2.0 * np.mean(table**2))),
-                                "1", samples.value, note="f-stop ladder table")
-            )  # fmt: skip
+        u_tab = _table_u(cal.fstops, infos)
+        if u_tab > 0:  # the ladder's own uncertainty: the standard's stops vs the sample's
+            terms.append(bt.Perturbation("exposure_table", u_tab, "1", samples.value,
+                                         note="f-stop ladder table, the stops used"))  # fmt: skip
         return terms
     err = math.hypot(
         bt.spec_rms(spec.get("fstop_error")), bt.spec_rms(spec.get("iris_repeatability"))
@@ -262,6 +262,21 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
     series = 0.02 * bt.spec_rms(spec.get("fstop_series"))  # marked vs √2^k: up to 2 %
     u = math.sqrt(err**2 + series**2 + flicker**2)
     return bt.exposure_terms(samples, u, "exposure(uncorrected)") if u > 0 else []
+
+
+def _table_u(fst: Any, infos: Sequence[Mapping[str, Any]]) -> float:
+    """RMS over the captures of the ladder table's uncertainty of the ratio between the
+    standard's and the sample's stops (their mean log gains, independent stops)."""
+    u = fst.u_log_gain
+    vals = []
+    for i in infos:
+        s, m = i.get("stops_standard") or [], i.get("stops") or []
+        if not s or not m:
+            continue
+        us = math.sqrt(sum(u.get(float(x), 0.0) ** 2 for x in s)) / len(s)
+        um = math.sqrt(sum(u.get(float(x), 0.0) ** 2 for x in m)) / len(m)
+        vals.append(us * us + um * um)
+    return math.sqrt(sum(vals) / len(vals)) if vals else 0.0
 
 
 def _rho_std(cal: Any, samples: Any) -> float:
