@@ -161,10 +161,13 @@ def reduce_incidence(
     for rot, frames in measured.items():
         meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames)), fst)
         kw = dict(opts)
-        info: dict[str, Any] = {"rotation_deg": float(rot), "n_frames": n_meas,
-                                "n_frames_standard": n_std,
-                                "stops": [float(m["f_number"]) for _, m in frames],
-                                "stops_standard": [float(m["f_number"]) for _, m in standard]}  # fmt: skip
+        info: dict[str, Any] = {
+            "rotation_deg": float(rot),
+            "n_frames": n_meas,
+            "n_frames_standard": n_std,
+            "stops": [float(m["f_number"]) for _, m in frames],
+            "stops_standard": [float(m["f_number"]) for _, m in standard],
+        }
         if g_s is not None:
             g_m = glare_offset(meas, bg, dark)
             kw["glare"] = (veil(g_m, shape, dark), veil(g_s, shape, dark))
