@@ -147,6 +147,7 @@ def reduce_incidence(
         opts["certificate"] = cal.certificate
     fst = cal.fstops if cal is not None and "exposure" in corr else None
     std, n_std = _fstop_corrected(std, fst)
+    bg, _ = _fstop_corrected(bg, fst)  # the background too: eq. 2 and the veil subtract it
     dark = None
     if "glare" in corr and cal is not None:
         h, w = np.asarray(std.images[0]).shape
