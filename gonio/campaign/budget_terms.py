@@ -206,8 +206,10 @@ def _unit(w: NDArray) -> NDArray:
 GRID = 48
 #: realisations of a random dome figure averaged for its term (Monte Carlo of its model)
 FIGURE_REALISATIONS = 4
-#: every how many pixels a ray is traced for the dome-figure fields
-FIGURE_STRIDE = 8
+#: every how many pixels of the image circle the direction fields use
+FIELD_STRIDE = 4
+#: of those, every how many a ray is traced through a random dome figure
+FIGURE_STRIDE = 2
 
 
 def _cell(w: NDArray, grid: int = GRID) -> NDArray[np.int64]:
@@ -239,7 +241,6 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
     got = cal.__dict__.get("_direction_fields")
     if got is not None:
         return got
-    from gonio.calibration.reduce import pixel_geometry
 
     out: list[tuple[str, float, str, NDArray, bool]] = []
     lens = cal.lens_model()
@@ -247,13 +248,19 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
     if lens is None or mc is None:
         cal.__dict__["_direction_fields"] = out
         return out
-    wo0, ok0 = pixel_geometry(lens, mc.geometry, mc.method)
-    base = ok0.ravel()
+    from gonio.calibration.angles import reflection_directions
 
-    def field(lens1: Any, geo1: Any) -> NDArray:
-        wo1, ok1 = pixel_geometry(lens1, geo1, mc.method)
-        both = base & ok1.ravel()
-        return _cell_means(wo0.reshape(-1, 3)[both], wo1.reshape(-1, 3)[both])
+    # every FIELD_STRIDE-th pixel of the image circle: a cell mean needs a few, and the
+    # Kannala-Brandt inverse of the whole grid takes a second
+    uv = lens.pixel_grid().reshape(-1, 2)
+    pix = np.flatnonzero(lens.in_field(uv))[::FIELD_STRIDE]
+    cam = lens.unproject(uv[pix])
+    wo0, ok0 = reflection_directions(cam, mc.geometry, mc.method)
+
+    def field(cam1: NDArray, geo1: Any) -> NDArray:
+        wo1, ok1 = reflection_directions(cam1, geo1, mc.method)
+        both = ok0 & ok1
+        return _cell_means(wo0[both], wo1[both])
 
     vals, vecs = np.linalg.eigh(np.asarray(mc.covariance, dtype=np.float64))
     for j in range(vals.size):
@@ -261,29 +268,28 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
             g = mc.geometry
             for name, dv in zip(mc.names, vecs[:, j] * math.sqrt(vals[j])):
                 g = _moved(g, name, dv)
-            out.append((f"geometry[{j}]", 1.0, "σ", field(lens, g), True))
+            out.append((f"geometry[{j}]", 1.0, "σ", field(cam, g), True))
     u_f = float((cal.lens or {}).get("fx_u_rel", 0.0))
     if u_f > 0:
         from dataclasses import replace
 
         scaled = replace(lens, fx=lens.fx * (1 + u_f), fy=lens.fy * (1 + u_f))
-        out.append(("lens_scale", u_f, "1", field(scaled, mc.geometry) / u_f, True))
+        cam1 = scaled.unproject(uv[pix])
+        out.append(("lens_scale", u_f, "1", field(cam1, mc.geometry) / u_f, True))
     slope = spec_rms(cal.specification.get("dome_slope_error"))
     if slope > 0:
-        out += _figure_fields(lens, mc, wo0, base, slope)
+        out += _figure_fields(mc, cam, wo0, ok0, slope)
     cal.__dict__["_direction_fields"] = out
     return out
 
 
-def _figure_fields(lens: Any, mc: Any, wo0: NDArray, base: NDArray, slope: float) -> list:
+def _figure_fields(mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float) -> list:
     from gonio.simulator import lbl_effects as le
     from gonio.simulator.optics import Mirror
 
     g = mc.geometry
     mirror = Mirror(g.kind, g.radius, g.half_separation, 0.5, 0.45)
-    idx = np.flatnonzero(base)[::FIGURE_STRIDE]  # a few rays per cell are enough
-    uv = lens.pixel_grid().reshape(-1, 2)
-    dirs = lens.unproject(uv[idx])
+    keep = np.flatnonzero(ok0)[::FIGURE_STRIDE]  # a few rays per cell are enough
     r = max(mirror.semi_axes)
     out = []
     k_n = FIGURE_REALISATIONS
@@ -293,11 +299,10 @@ def _figure_fields(lens: Any, mc: Any, wo0: NDArray, base: NDArray, slope: float
         def sl(p, seed=seed):
             return le.slope_field(p, 1.0, r, seed)
 
-        tr = le.trace_perturbed(mirror, dirs, sl, 0.0)
+        tr = le.trace_perturbed(mirror, cam[keep], sl, 0.0)
         ok = tr["valid"]
-        w0 = wo0.reshape(-1, 3)[idx][ok]
         out.append((f"dome_figure[{k}]", slope / math.sqrt(k_n), "rad",
-                    _cell_means(w0, tr["wo"][ok]), False))  # fmt: skip
+                    _cell_means(wo0[keep][ok], tr["wo"][ok]), False))  # fmt: skip
     return out
 
 

@@ -38,6 +38,7 @@ __all__ = [
     "SIDECAR_FIELDS",
     "campaign_budget",
     "check_corrections",
+    "field_angle",
     "laboratory_view",
     "reduce_incidence",
 ]
@@ -156,7 +157,7 @@ def reduce_incidence(
         dark = dark_region(std, bg, gvalid)
     g_s = None
     if dark is not None:
-        shape = veil_shape(bg, gvalid, _field_angle(lens))
+        shape = veil_shape(bg, gvalid, field_angle(lens))
         g_s = glare_offset(std, bg, dark)
     out = []
     for rot, frames in measured.items():
@@ -183,7 +184,7 @@ def reduce_incidence(
 _FIELD_ANGLES: dict[str, np.ndarray] = {}
 
 
-def _field_angle(lens: Any) -> np.ndarray:
+def field_angle(lens: Any) -> np.ndarray:
     """Field angle of every pixel (flat), cached per lens (the Kannala-Brandt inverse of a
     640 x 480 grid takes a second)."""
     import json

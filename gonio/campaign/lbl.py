@@ -217,16 +217,32 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None) -> Any:
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
-        return read_calibration(plan.calibration)
+        lab = read_calibration(plan.calibration)
+        if isinstance(inst, _SimulatedLBL) and lab.lens is not None and lab.mirror is not None:
+            _warm(lab, inst.inst)
+        return lab
     if plan.preset == "ideal" or not isinstance(inst, _SimulatedLBL):
         return None
     from gonio.campaign.calibrate import laboratory_calibration, specification
 
     sim = inst.inst
-    return laboratory_calibration(
+    lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
     )  # fmt: skip
+    _warm(lab, sim)
+    return lab
+
+
+def _warm(lab: Any, sim: Any) -> None:
+    """The calibrated lens's pixel geometry and field angles computed here, before the
+    workers fork (each would otherwise invert the Kannala-Brandt map of the whole grid)."""
+    from gonio.calibration.reduce import load_lens, pixel_geometry
+    from gonio.campaign.knowledge import field_angle
+
+    lens = load_lens(lab.lens, sim.lens.width, sim.lens.height)
+    pixel_geometry(lens, lab.mirror.geometry, lab.mirror.method)
+    field_angle(lens)
 
 
 def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
