@@ -45,6 +45,9 @@ MIN_DARK_PIXELS = 200
 def _longest_signal(capture: Any) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """The capture's longest-exposure frame: linear signal per unit exposure scale (flat)
     and where it is unsaturated."""
+    got = capture.__dict__.get("_longest")
+    if got is not None:  # cached on the capture (dark region, veils, shape use it)
+        return got
     scales = [exposure_scale(m) for m in capture.metas]
     k = int(np.argmax(scales))
     meta = capture.metas[k]
@@ -52,7 +55,8 @@ def _longest_signal(capture: Any) -> tuple[NDArray[np.float64], NDArray[np.bool_
     raw = np.asarray(capture.images[k], dtype=np.float64).ravel()
     t = float(meta.get("exposure_s", 0.0))
     sig = (raw - sensor.black_level - sensor.dark_current * t / sensor.gain) / scales[k]
-    return sig, raw < sensor.white_level
+    got = capture.__dict__["_longest"] = (sig, raw < sensor.white_level)
+    return got
 
 
 def dark_region(
