@@ -24,9 +24,10 @@ Type B evaluation from the maker's data). Their physics, in the form the reducti
     ``(y + g ȳ)/(1 + g)``, i.e. ``δy = g (ȳ − y)`` with ``ȳ`` the mean of the BRDF over the
     capture's pixels (evaluated with the fitted model on the calibrated pixel geometry).
 ``geometry``
-    The calibrated dome parameters' covariance (:class:`~gonio.calibration.mirror.
-    MirrorCalibration`), split into independent components; each moves every pixel's
-    reflection direction, and ``δy = f(wo + δwo) − f(wo)`` with the fitted model.
+    The calibrated dome parameters' covariance
+    (:class:`~gonio.calibration.mirror.MirrorCalibration`), split into independent
+    components; each moves every pixel's reflection direction, and
+    ``δy = f(wo + δwo) − f(wo)`` with the fitted model.
 ``blur``
     An image blur of angular RMS ``σ`` per axis (pixel area, diffraction) changes a smooth
     BRDF by ``δy = ½ σ² ∇²f`` (second order of the Gaussian average; the Laplacian on the

@@ -5,9 +5,9 @@ laboratory: it keeps of each side-car only the fields a real instrument writes (
 marked f-number, the camera's read-out parameters, the commanded incidence and rotation, the
 campaign clock) and drops the simulator's description of itself (its true lens, mirror,
 source, sample BRDF, effect magnitudes). :func:`reduce_incidence` reduces one incidence's
-captures with the laboratory's calibration (:class:`~gonio.calibration.laboratory.
-LabCalibration`) and the corrections of :data:`CORRECTIONS`, each of which can be switched
-off (ablation):
+captures with the laboratory's calibration
+(:class:`~gonio.calibration.laboratory.LabCalibration`) and the corrections of
+:data:`CORRECTIONS`, each of which can be switched off (ablation):
 
 ``geometry``
     the calibrated lens and dome geometry instead of the nominal design;
