@@ -109,7 +109,9 @@ _CHILD = textwrap.dedent(
     from gonio import fit
 
     out = Path(sys.argv[1])
-    plan = Plan.from_dict(json.loads((out / "plan.json").read_text())).resolved()
+    # plan.json holds the resolved plan (resolving again would check the preset against
+    # the simulator's effects, which this process must not import)
+    plan = Plan.from_dict(json.loads((out / "plan.json").read_text()))
     lab = None
     if (out / "calibration" / "calibration.json").is_file():
         from gonio.calibration.laboratory import read_calibration
