@@ -579,6 +579,8 @@ def _report(
     summary["calibration"] = None if setup.lab is None else setup.lab.info
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
+        if budget is not None:
+            summary["files"]["plots"].append("plots/budget.png")
     effects = getattr(setup.instrument, "effects", None)
     if effects is not None:  # the simulated instrument's truth, beside the fit's
         summary["instrument"] = {
@@ -587,8 +589,6 @@ def _report(
             "binning": list(plan.binning) if plan.binning else None,
             "effects": {k: v for k, v in effects.items() if v != 0.0},
         }
-        if budget is not None:
-            summary["files"]["plots"].append("plots/budget.png")
     return summary
 
 
