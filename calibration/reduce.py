@@ -565,8 +565,8 @@ def standard_factor(
     viewing angle. An incidence outside the certificate raises ``ValueError``.
     """
     certificate.check_covers(np.array([theta_i]))
-    rot = _angle(standard.meta, "sample_rotation", 0.0)
-    phi_s = _angle(standard.meta, "phi_i", 0.0)
+    rot = sidecar_angle(standard.meta, "sample_rotation", "standard metadata", 0.0)
+    phi_s = sidecar_angle(standard.meta, "phi_i", "standard metadata", 0.0)
     w = to_sample_frame(wo_dome, rot)
     to, po = to_spherical(w)
     dphi = np.abs(po - phi_s) % (2.0 * math.pi)
