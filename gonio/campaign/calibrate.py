@@ -262,15 +262,19 @@ def laboratory_calibration(
 ):
     """The calibration of a simulated instrument, made once and kept.
 
-    A ``folder`` holding a ``calibration.json`` is read instead (a laboratory's calibration
-    folder); otherwise the calibration is made (:func:`take_captures`, :func:`calibrate`),
-    kept in memory for the same physical instrument, and written to ``folder`` if given.
+    A ``folder`` holding a ``calibration.json`` made for this physical instrument (its
+    ``info["instrument"]``, the instrument's identity) is read instead; otherwise the
+    calibration is made (:func:`take_captures`, :func:`calibrate`), kept in memory for the
+    same physical instrument, and written to ``folder`` if given (a folder copied from
+    another instrument's campaign is calibrated anew).
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
-    if folder is not None and (Path(folder) / CALIBRATION_FILE).is_file():
-        return read_calibration(folder)
     key = _key(inst) + f"/{method}/{seed}"
+    if folder is not None and (Path(folder) / CALIBRATION_FILE).is_file():
+        got = read_calibration(folder)
+        if got.info.get("instrument") == key:
+            return got
     cal = _CACHE.get(key)
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
@@ -283,7 +287,8 @@ def laboratory_calibration(
         _CACHE[key] = cal
     from dataclasses import replace
 
-    cal = replace(cal, certificate=certificate, specification=dict(specification or {}))
+    cal = replace(cal, certificate=certificate, specification=dict(specification or {}),
+                  info={**cal.info, "instrument": key})  # fmt: skip
     if folder is not None:
         cal.write(folder)
     return cal

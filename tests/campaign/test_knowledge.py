@@ -101,7 +101,10 @@ _CHILD = textwrap.dedent(
         values = items
 
     from pathlib import Path
-    from gonio.campaign.folder import group_key, load_group
+    from gonio.campaign.folder import group_key, load_group as _load
+
+    def load_group(folder):  # the group as the campaign recorded it
+        return _load(folder, json.loads((folder / "done.json").read_text())["made_by"])
     from gonio.campaign.knowledge import SENSOR_FIELDS as SENSOR, SIDECAR_FIELDS as KEPT
     from gonio.campaign.knowledge import reduce_incidence
     from gonio.campaign.plan import Plan, capture_seed
