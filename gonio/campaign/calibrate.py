@@ -170,6 +170,7 @@ def calibrate(
             captures["board"], make_board()
         )
     lens_rec = lens_cal.to_dict()
+    lens_rec.pop("seconds", None)  # a run time: the calibration file is the same every run
     lens_rec["fx_u_rel"] = _split_half_focal(captures["board"], lens_cal)
     lens = lens_cal.lens
     uv, dirs = [], []
