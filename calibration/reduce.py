@@ -64,6 +64,7 @@ __all__ = [
     "reduce_capture",
     "reduce_many",
     "reduce_selected",
+    "standard_factor",
 ]
 
 
@@ -554,6 +555,32 @@ def _select(
     return np.flatnonzero(key == best[cell])
 
 
+def standard_factor(
+    certificate: Any, standard: Capture, theta_i: float, wo_dome: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The certified reflectance factor ``R = π f / ρ`` of the standard at dome directions.
+
+    The directions are turned into the standard's frame (its capture's ``sample_rotation``
+    and ``phi_i``); returns ``R`` (1 where not covered) and where the certificate covers the
+    viewing angle. An incidence outside the certificate raises ``ValueError``.
+    """
+    certificate.check_covers(np.array([theta_i]))
+    rot = sidecar_angle(standard.meta, "sample_rotation", "standard metadata", 0.0)
+    phi_s = sidecar_angle(standard.meta, "phi_i", "standard metadata", 0.0)
+    w = to_sample_frame(wo_dome, rot)
+    to, po = to_spherical(w)
+    dphi = np.abs(po - phi_s) % (2.0 * math.pi)
+    dphi = np.where(dphi > math.pi, 2.0 * math.pi - dphi, dphi)
+    top = math.radians(float(certificate.theta_o_deg[-1]))
+    covered = to <= top
+    fac = np.ones(to.shape)
+    if covered.any():
+        fac[covered] = certificate.factor_at(
+            np.full(int(covered.sum()), theta_i), to[covered], dphi[covered]
+        )
+    return fac, covered
+
+
 def reduce_selected(
     measured: Capture,
     standard: Capture,
@@ -569,6 +596,8 @@ def reduce_selected(
     peak_fraction: float = 0.1,
     rng: int | np.random.Generator | None = None,
     debias: bool = False,
+    certificate: Any = None,
+    glare: tuple[float, float] | None = None,
 ) -> ReductionResult:
     """Reduce one incidence by *selection*: one pixel per equal-solid-angle cell, reduced alone.
 
@@ -593,8 +622,19 @@ def reduce_selected(
     21 θi × 2 rotations, default noise: mean ρs pull +1.03 ± 0.15 over 49 seeds without it,
     −0.02 ± 0.14 over 60 with it). ``pixels`` of the result hold the
     selected pixels; ``reflectance`` is ``None``.
+
+    ``certificate`` (the diffuse standard's calibration certificate, e.g.
+    :class:`gonio.io.certificate.Certificate`: ``rho`` and ``factor_at(θi, θo, Δφ)``) makes
+    eq. 2 use the certified BRDF ``ρ R / π`` of the standard at each pixel's direction (in the
+    standard's frame) instead of a Lambertian ``ρ / π`` (:func:`standard_factor`); pixels whose
+    viewing angle lies beyond the certified range are dropped, an incidence beyond it is a
+    ``ValueError``. ``glare`` = ``(measured, standard)`` veils per unit exposure scale
+    (scalars or flat per-pixel images, :func:`gonio.calibration.glare.veil`) are subtracted
+    from the two signals before eq. 2.
     """
     t0 = time.perf_counter()
+    if certificate is not None and rho_standard is None:
+        rho_standard = float(certificate.rho)
     meta, shape, rho_standard = _check_triple(measured, standard, background, rho_standard)
     for name, c in (("measured", measured), ("standard", standard), ("background", background)):
         if not is_linear(c.meta):
@@ -658,11 +698,28 @@ def reduce_selected(
     ok_all = mr["m"].valid[0] & mr["s"].valid[0] & mr["b"].valid[0] & reg_ok
     num_r = mr["m"].value[0] - mr["b"].value[0]
     den_r = mr["s"].value[0] - mr["b"].value[0]
+    if glare is not None:  # the veils of the sample's and the standard's own light
+        g_m, g_s = (np.asarray(x, dtype=np.float64) for x in glare)
+        if g_m.ndim:  # per-pixel veils (flat images)
+            num_r, den_r = num_r - g_m[region], den_r - g_s[region]
+            ms["m"].value -= g_m[sel]
+            ms["s"].value -= g_s[sel]
+        else:
+            num_r, den_r = num_r - g_m, den_r - g_s
+            ms["m"].value -= g_m
+            ms["s"].value -= g_s
     ratio_at = (nb_mean(num_r, ok_all)[None, :], nb_mean(den_r, ok_all)[None, :])
     t2 = time.perf_counter()
     refl = eq2(ms["m"], ms["s"], ms["b"], rho_standard, threshold=threshold, ratio_at=ratio_at,
                debias=debias)  # fmt: skip
     keep = refl.mask[0]
+    if certificate is not None:
+        wo_std = wo_dome.reshape(-1, 3)[sel]
+        fac, covered = standard_factor(certificate, standard, theta_i, wo_std)
+        keep = keep & covered
+        # eq. 2's standard is ρR/π, not ρ/π: the ratio times the certified factor
+        refl.value[0] = np.where(covered, refl.value[0] * fac, 0.0)
+        refl.sigma[0] = np.where(covered, refl.sigma[0] * fac, 0.0)
     if not keep.any():
         raise ValueError(
             f"no selected pixel survived eq. 2 masking (θi {math.degrees(theta_i):.2f}°, "

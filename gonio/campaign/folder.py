@@ -216,7 +216,7 @@ def check_out(outp: Path, plan: Plan, resume: bool, truth: Any = None) -> None:
 
 def capture_fields(plan: Plan) -> dict[str, Any]:
     d = plan.to_dict()
-    keys = ("material", "instrument", "mirror", "exposures_s", "noise", "seed")
+    keys = ("material", "instrument", "mirror", "exposures_s", "noise", "seed", "preset")
     # (thinning is not part of it: raw captures can be reduced again with another thinning)
     return {k: d[k] for k in keys}
 

@@ -145,10 +145,16 @@ def _stages(
             result, compare = _fit(ex, plan, samples, setup.truth, quiet, stream)
         for name, future in saved.items():
             ex.timings[name] = future.result()
+        with ex.stage("budget"):  # the GUM budget from the laboratory's knowledge
+            from gonio.campaign.knowledge import campaign_budget
+
+            infos = [i for r in per_angle for i in r.get("infos", [])]
+            budget = campaign_budget(result, samples, setup.lab, corrections=plan.corrections,
+                                     infos=infos)  # fmt: skip
         # 4. report
-        summary = _report(plan, setup, result, compare, samples, per_angle)
+        summary = _report(plan, setup, result, compare, samples, per_angle, budget)
         with ex.stage("plots"):
-            _plots(ex, setup, samples, result.model)
+            _plots(ex, setup, samples, result.model, summary.get("budget"))
             ex.wait_plots()
     with ex.stage("report"):
         from gonio.campaign.report import write_report
@@ -172,6 +178,7 @@ class _Setup:
     truth: Any
     instrument: Any
     workers: int
+    lab: Any = None  # the laboratory's calibration (None: the nominal design)
 
     @property
     def raw(self) -> Path | None:
@@ -198,7 +205,44 @@ def _prepare(
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
-    return _Setup(plan, outp, info, truth_model, inst, n_workers)
+    lab = _laboratory(plan, inst, outp)
+    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab)
+
+
+def _laboratory(plan: Plan, inst: Any, outp: Path | None) -> Any:
+    """The laboratory's calibration: the plan's calibration folder, else (a realistic
+    simulated instrument) its calibration from calibration captures, made once per physical
+    instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`) and copied to
+    ``OUT/calibration``; None for the ideal instrument, whose design is its truth."""
+    if plan.calibration is not None:
+        from gonio.calibration.laboratory import read_calibration
+
+        lab = read_calibration(plan.calibration)
+        if isinstance(inst, _SimulatedLBL) and lab.lens is not None and lab.mirror is not None:
+            _warm(lab, inst.inst)
+        return lab
+    if plan.preset == "ideal" or not isinstance(inst, _SimulatedLBL):
+        return None
+    from gonio.campaign.calibrate import laboratory_calibration, specification
+
+    sim = inst.inst
+    lab = laboratory_calibration(
+        sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
+        certificate=sim.certificate(), specification=specification(plan.preset),
+    )  # fmt: skip
+    _warm(lab, sim)
+    return lab
+
+
+def _warm(lab: Any, sim: Any) -> None:
+    """The calibrated lens's pixel geometry and field angles computed here, before the
+    workers fork (each would otherwise invert the Kannala-Brandt map of the whole grid)."""
+    from gonio.calibration.reduce import load_lens, pixel_geometry
+    from gonio.campaign.knowledge import field_angle
+
+    lens = load_lens(lab.lens, sim.lens.width, sim.lens.height)
+    pixel_geometry(lens, lab.mirror.geometry, lab.mirror.method)
+    field_angle(lens)
 
 
 def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
@@ -317,7 +361,7 @@ def _capture_and_reduce(
     angles = setup.plan.theta_i_deg
     out: list[dict[str, Any] | None] = [None] * len(angles)
     calls = [(setup.plan, th, setup.raw, resume) for th in angles]
-    state = {"inst": setup.instrument, "truth": setup.truth}
+    state = {"inst": setup.instrument, "truth": setup.truth, "lab": setup.lab}
     prepare = getattr(setup.instrument, "prepare", None)
     with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
         for k, res in ex.map(
@@ -334,8 +378,6 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
     Runs in a worker process (or in the campaign's): the instrument and the truth come from
     the executor's :func:`~gonio.campaign.executor.worker_state`.
     """
-    from gonio.calibration.reduce import Capture, reduce_capture, reduce_selected
-
     inst, truth_model = worker_state()["inst"], worker_state()["truth"]
     ti = math.radians(th)
     res: dict[str, Any] = {"tables": [], "n_pixels": 0, "n_loaded": 0, "t_capture": 0.0,
@@ -362,24 +404,47 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
         res["t_load"] += tio
     t = time.perf_counter()
     ref = captured[group_key(th)]
-    std, bg = Capture(ref["standard"]), Capture(ref["background"])
-    for rot in plan.rotations_deg:
-        meas = Capture(captured[group_key(th, rot)]["measured"])
-        opts = dict(plan.thinning)
-        debias = plan.debias and plan.noise > 0
-        if plan.thinning_mode == "select":
-            sel_seed = capture_seed(plan.seed, group_key(th, rot) + "/select")
-            red = reduce_selected(meas, std, bg, rng=sel_seed, debias=debias, **opts)
-        else:
-            red = reduce_capture(meas, std, bg, thinning=opts, debias=debias)
-        res["tables"].append(red.samples)
-        res["n_pixels"] += int(red.stats.get("n_before", len(red.samples)))
+    measured = {rot: captured[group_key(th, rot)]["measured"] for rot in plan.rotations_deg}
+    for table, info in _reduce(plan, th, ref["standard"], ref["background"], measured):
+        res["tables"].append(table)
+        res.setdefault("infos", []).append(info)
+        res["n_pixels"] += int(info["n_before"])
         if raw is not None:  # format this table's samples.csv rows here (in a worker: in parallel)
             from gonio.io.samples_table import csv_rows
 
-            res.setdefault("csv_rows", []).append(csv_rows(red.samples))
+            res.setdefault("csv_rows", []).append(csv_rows(table))
     res["t_reduce"] = time.perf_counter() - t
     return res
+
+
+def _reduce(
+    plan: Plan, th: float, standard: Frames, background: Frames, measured: Mapping[float, Frames]
+) -> list[tuple[BRDFSamples, dict[str, Any]]]:
+    """One incidence's captures reduced as the laboratory does it: side-cars cut to what a
+    real instrument writes, its calibration and corrections
+    (:func:`gonio.campaign.knowledge.reduce_incidence`); the averaging thinning with the
+    same knowledge but no per-capture corrections."""
+    from gonio.calibration.reduce import Capture, reduce_capture
+    from gonio.campaign.knowledge import laboratory_view, reduce_incidence
+
+    lab = worker_state().get("lab")
+    opts = dict(plan.thinning)
+    debias = plan.debias and plan.noise > 0
+    if plan.thinning_mode == "select":
+        seeds = {rot: capture_seed(plan.seed, group_key(th, rot) + "/select") for rot in measured}
+        return reduce_incidence(standard, background, measured, lab, corrections=plan.corrections,
+                                seeds=seeds, debias=debias, select=opts)  # fmt: skip
+    std, bg = Capture(laboratory_view(standard)), Capture(laboratory_view(background))
+    geo = {} if lab is None else {k: v for k, v in lab.reduction_options().items()
+                                  if k in ("lens", "mirror", "method")}  # fmt: skip
+    out = []
+    for rot, frames in measured.items():
+        red = reduce_capture(Capture(laboratory_view(frames)), std, bg, thinning=opts,
+                             debias=debias, **geo)  # fmt: skip
+        n = red.stats.get("n_before", len(red.samples))
+        out.append((red.samples, {"rotation_deg": float(rot), "n_frames": len(frames),
+                                  "n_before": n}))  # fmt: skip
+    return out
 
 
 def _take_group(
@@ -499,17 +564,23 @@ def _fit_setup(model: str, truth: Any) -> tuple[Any, dict[str, Any]]:
 # ----------------------------------------------------------------------------- 4. report
 def _report(
     plan: Plan, setup: _Setup, result: Any, compare: dict[str, Any], samples: BRDFSamples,
-    per_angle: list[dict[str, Any]],
+    per_angle: list[dict[str, Any]], budget: Any = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """The summary: the truth against the fit (the one place where both meet)."""
-    from gonio.campaign.report import PLOTS, summarise
+    """The summary: the truth against the fit and its budget (the one place where both
+    meet)."""
+    from gonio.campaign.report import PLOTS, add_budget, summarise
 
     n_pixels = sum(r["n_pixels"] for r in per_angle)
     n_loaded = sum(r["n_loaded"] for r in per_angle)
     summary = summarise(plan, setup.info, setup.truth, result, compare, samples, n_pixels,
                         n_loaded)  # fmt: skip
+    if budget is not None:
+        add_budget(summary, budget)
+    summary["calibration"] = None if setup.lab is None else setup.lab.info
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
+        if budget is not None:
+            summary["files"]["plots"].append("plots/budget.png")
     effects = getattr(setup.instrument, "effects", None)
     if effects is not None:  # the simulated instrument's truth, beside the fit's
         summary["instrument"] = {
@@ -521,14 +592,21 @@ def _report(
     return summary
 
 
-def _plots(ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any) -> None:
+def _plots(
+    ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any,
+    budget: Mapping[str, Any] | None = None,
+) -> None:  # fmt: skip
     """With ``model=None`` the hemisphere map, which needs no fit; else the two plots that
-    show the fitted model (in the plot process, in parallel, when there is one)."""
-    from gonio.campaign.report import draw
+    show the fitted model and the budget (in the plot process, in parallel, when there is
+    one)."""
+    from gonio.campaign.report import draw, draw_budget
 
     plan = setup.plan
     if setup.out is None or not plan.plots:
         return
+    if budget is not None:
+        ex.plot(draw_budget, budget, setup.out / "plots", f"{plan.material} ({plan.model})",
+                each=("budget",))  # fmt: skip
     names = ("hemisphere",) if model is None else ("incidence_plane", "residuals")
     ex.plot(draw, samples, model, setup.out / "plots", f"{plan.material} ({plan.model})",
             each=names)  # fmt: skip

@@ -119,6 +119,15 @@ class Plan:
         Reduce every raw image to this size before quantisation (Ward's 108 × 80
         digitiser); default the preset's (:data:`gonio.simulator.effects.PRESET_OPTIONS`),
         ``(0, 0)`` full resolution.
+    corrections : sequence of str, optional
+        The laboratory's corrections (:data:`gonio.campaign.knowledge.CORRECTIONS`:
+        ``geometry``, ``standard``, ``exposure``, ``glare``); default all. A correction
+        left out is an ablation: its effect stays in the data and the budget carries it as
+        an uncorrected term.
+    calibration : str, optional
+        A calibration folder (``calibration.json``, :mod:`gonio.calibration.laboratory`)
+        to reduce with instead of calibrating the instrument (the default, once per
+        physical instrument).
     """
 
     material: str = "rolled_brass"
@@ -140,6 +149,8 @@ class Plan:
     preset: str = "modern"
     instrument_seed: int | None = None
     binning: tuple[int, int] | None = None
+    corrections: tuple[str, ...] | None = None
+    calibration: str | None = None
 
     def resolved(self, truth: Any = None) -> Plan:
         """The plan with defaults filled in and every field validated.
@@ -207,6 +218,11 @@ class Plan:
         thinning = tuple((str(k), v) for k, v in given.items())
         if not isinstance(self.debias, bool | np.bool_):
             raise ValueError(f"debias {self.debias!r}: expected True or False")
+        from gonio.campaign.knowledge import check_corrections
+
+        corrections = None if self.corrections is None else check_corrections(self.corrections)
+        if self.calibration is not None and not isinstance(self.calibration, str):
+            raise ValueError(f"calibration {self.calibration!r}: expected a folder path")
         d_over_r = self.d_over_r
         if d_over_r is not None:
             d_over_r = float(d_over_r)
@@ -228,6 +244,7 @@ class Plan:
             compare=compare,
             d_over_r=d_over_r,
             debias=bool(self.debias),
+            corrections=corrections,
         )
 
     def _resolved_instrument(self) -> tuple[str, int, tuple[int, int] | None]:

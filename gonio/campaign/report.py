@@ -17,7 +17,16 @@ import numpy as np
 from gonio.campaign.plan import Plan
 from gonio.samples import BRDFSamples
 
-__all__ = ["PLOTS", "CampaignResult", "draw", "summarise", "summary_table", "write_report"]
+__all__ = [
+    "PLOTS",
+    "CampaignResult",
+    "add_budget",
+    "draw",
+    "draw_budget",
+    "summarise",
+    "summary_table",
+    "write_report",
+]
 
 
 @dataclass
@@ -47,6 +56,27 @@ def draw(name: str, samples: BRDFSamples, model: Any, folder: Path, title: str) 
         plots.plot_incidence_plane(samples, model, path, title=title)
     else:
         plots.plot_residuals(samples, model, path, title=title)
+
+
+def draw_budget(name: str, budget: Mapping[str, Any], folder: Path, title: str) -> None:
+    """``plots/budget.png``: the uncertainty budget (:func:`gonio.plots.budget.plot_budget`)."""
+    from gonio.plots.budget import plot_budget
+
+    plot_budget(budget, folder / f"{name}.png", title=title)
+
+
+def add_budget(summary: dict[str, Any], budget: Any) -> None:
+    """The budget (``summary["budget"]``) and, for each fitted parameter with a truth,
+    whether the truth lies within the expanded uncertainty (``within_expanded``) — the
+    budget's check against the truth."""
+    b = budget.to_dict()
+    summary["budget"] = b
+    truth = summary.get("truth", {}) if summary.get("model") == summary.get("truth_model") else {}
+    within = {}
+    for k, u in b["expanded"].items():
+        if k in truth:
+            within[k] = bool(abs(summary["fit"][k] - truth[k]) <= u) if math.isfinite(u) else None
+    summary["within_expanded"] = within
 
 
 def _truth_params(truth: Any) -> dict[str, float]:
@@ -181,6 +211,12 @@ def summary_table(summary: Mapping[str, Any]) -> str:
                 )
             )
         lines.append(format_table(("model", "rms (sr^-1)", "chi2/dof"), crow))
+    if summary.get("budget"):
+        from gonio.campaign.budget import budget_table
+
+        b = summary["budget"]
+        lines.append(f"uncertainty budget (relative standard uncertainties; GUM, k = {b['k']:g}):")
+        lines.append(budget_table(b))
     tm = summary.get("timings_s", {})
     lines.append("time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in tm.items()))
     return "\n".join(lines)

@@ -108,6 +108,19 @@ def add_arguments(parser) -> None:
         help="keep eq. 2's second-order ratio bias (LBL; see Plan.debias)",
     )
     parser.add_argument(
+        "--corrections",
+        default=None,
+        metavar="LIST",
+        help="the laboratory's corrections (LBL), comma list of geometry, standard, exposure, "
+        "glare; 'none' for none (default all)",
+    )
+    parser.add_argument(
+        "--calibration",
+        default=None,
+        metavar="DIR",
+        help="a calibration folder (calibration.json) to reduce with (LBL)",
+    )
+    parser.add_argument(
         "--workers",
         type=int,
         default=None,
@@ -252,7 +265,13 @@ def run(args) -> int:
         preset=_preset(args, "lbl", "modern"),
         instrument_seed=args.instrument_seed,
         binning=parse_binning(args.binning),
+        calibration=args.calibration,
     )
+    if args.corrections is not None:
+        text = args.corrections.strip()
+        kw["corrections"] = (
+            () if text == "none" else tuple(c.strip() for c in text.split(",") if c.strip())
+        )
     if args.angles is not None:
         kw["theta_i_deg"] = parse_angles(args.angles)
     if args.rotations is not None:

@@ -1353,3 +1353,54 @@ register_knob(
         prepare=lambda: REFERENCES.get("cornell_warm", lambda: _knob_cornell(3, 0)),
     )
 )
+
+
+# --------------------------------------------------------------------------- laboratory corrections
+#: the corrections knob's settings: all, each one left out, none
+CORRECTION_SETTINGS = (
+    "all", "-geometry", "-standard", "-exposure", "-glare", "none",
+)  # fmt: skip
+
+
+def _knob_corrections(setting: str, seed: int) -> dict[str, float]:
+    """A realistic (``modern``) rolled-brass campaign on 7 incidences with the laboratory's
+    corrections (:data:`gonio.campaign.knowledge.CORRECTIONS`) all on, one left out, or
+    none: the fit's errors, and the largest error in units of the reported expanded
+    uncertainty (``max_err_over_U`` <= 1: the budget covers the error)."""
+    from gonio import materials
+    from gonio.campaign import Plan, run
+    from gonio.campaign.knowledge import CORRECTIONS
+
+    if setting == "all":
+        corr = CORRECTIONS
+    elif setting == "none":
+        corr = ()
+    else:
+        corr = tuple(c for c in CORRECTIONS if c != setting.lstrip("-"))
+    plan = Plan(material=LBL_MATERIAL, preset="modern", seed=seed, plots=False,
+                theta_i_deg=tuple(float(a) for a in np.linspace(0.0, 78.0, 7)),
+                corrections=corr)  # fmt: skip
+    r = run(plan, workers=1)
+    truth = materials.get(LBL_MATERIAL)
+    out = brdf_errors(truth, r.fit.model)
+    u = r.summary["budget"]["expanded"]
+    ratios = [abs(r.fit.params[k] - truth.params[k]) / u[k] for k in u if u[k] > 0]
+    out["max_err_over_U"] = float(max(ratios))
+    return out
+
+
+register_knob(
+    Knob(
+        "lbl_corrections",
+        "the laboratory's corrections of a realistic LBL instrument (modern preset, rolled "
+        "brass, 7 θi): all, each one left out (its effect stays in the data and the budget "
+        "carries it uncorrected), none",
+        settings=CORRECTION_SETTINGS,
+        quick_settings=("all", "none"),
+        run=_knob_corrections,
+        primary="max_rel_err",
+        unit="corrections",
+        needs=("gonio.simulator.effects", "gonio.campaign.knowledge"),
+        waiting_on="the simulator's effects (gonio.simulator.effects)",
+    )
+)

@@ -125,7 +125,7 @@ def test_worker_processes_give_the_same_campaign(tmp_path):
     for f in sorted((tmp_path / "one" / "raw").rglob("*.tif")):
         assert f.read_bytes() == (tmp_path / "two" / f.relative_to(tmp_path / "one")).read_bytes()
     assert sorted(p.name for p in (tmp_path / "two" / "plots").glob("*.png")) == [
-        "hemisphere.png", "incidence_plane.png", "residuals.png"
+        "budget.png", "hemisphere.png", "incidence_plane.png", "residuals.png"
     ]  # fmt: skip
     again = campaign.run(plan, tmp_path / "two", resume=True, workers=2)
     assert again.summary["n_captures"]["resumed_groups"] == 12

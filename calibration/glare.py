@@ -1,0 +1,168 @@
+"""Veiling glare measured in a known-dark region of the image and removed before eq. 2.
+
+A lens scatters a small fraction of the light it images into a veil over the whole image
+(ISO 9358): every pixel of the image circle gains about ``g`` times the mean image
+irradiance. Eq. 2 does not remove it: the background capture (no sample) carries only the
+veil of the background's own light, while the sample and standard images carry the veils of
+their reflections, so a dark part of the BRDF reads high by the veil over the standard's
+signal (1-5 % of a glossy sample's mean level in the dim parts of the lobe's image).
+
+Pixels of the image circle that see no sample light at all — blocked by the lens body or
+the holder's rim, the same pixels in every image — show the veil alone. :func:`dark_region`
+finds them in the standard capture (signal below ``fraction`` of its median over the image
+circle), and :func:`glare_offset` measures a capture's veil there: the mean of the capture's
+linear signal minus the background's over those pixels (per unit exposure scale, with its
+standard error from the pixels' scatter). :func:`gonio.calibration.reduce.reduce_selected`
+subtracts the offsets from the sample and standard signals (``glare=``). Without a dark
+region (a dome that images every pixel onto the sample) there is nothing to measure and
+nothing is removed.
+
+References
+----------
+ISO 9358:1994, Optics and optical instruments — Veiling glare of image forming systems —
+Definitions and methods of measurement (the veiling glare index: the light in the image of a
+black patch against a bright field). McCann, J. J. and Rizzi, A. (2007). Veiling glare: the
+dynamic range limit of HDR images. Proc. SPIE 6492, 649213.
+https://doi.org/10.1117/12.703694
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from gonio.calibration.radiometry import SensorModel, exposure_scale
+from numpy.typing import NDArray
+
+__all__ = ["GlareOffset", "dark_region", "glare_offset", "veil", "veil_shape"]
+
+#: fewest dark pixels a glare estimate uses
+MIN_DARK_PIXELS = 200
+
+
+def _longest_signal(capture: Any) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The capture's longest-exposure frame: linear signal per unit exposure scale (flat)
+    and where it is unsaturated."""
+    got = capture.__dict__.get("_longest")
+    if got is not None:  # cached on the capture (dark region, veils, shape use it)
+        return got
+    scales = [exposure_scale(m) for m in capture.metas]
+    k = int(np.argmax(scales))
+    meta = capture.metas[k]
+    sensor = SensorModel.from_metadata(meta)
+    raw = np.asarray(capture.images[k], dtype=np.float64).ravel()
+    t = float(meta.get("exposure_s", 0.0))
+    sig = (raw - sensor.black_level - sensor.dark_current * t / sensor.gain) / scales[k]
+    got = capture.__dict__["_longest"] = (sig, raw < sensor.white_level)
+    return got
+
+
+def dark_region(
+    standard: Any, background: Any, in_field: NDArray[np.bool_], *, fraction: float = 0.25
+) -> NDArray[np.int64] | None:
+    """Flat indices of the image-circle pixels that see no standard light, or None.
+
+    Parameters
+    ----------
+    standard, background : Capture
+        The standard and background captures of one incidence.
+    in_field : ndarray of bool (H, W)
+        The image circle (from the calibrated lens).
+    fraction : float
+        A pixel is dark when the standard's signal over the background is below this
+        fraction of its median over the image circle (the veil is a few per cent of it).
+
+    Returns
+    -------
+    ndarray of int or None
+        None when fewer than :data:`MIN_DARK_PIXELS` pixels are dark.
+    """
+    if not (0.0 < fraction < 1.0):
+        raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
+    s, ok_s = _longest_signal(standard)
+    b, ok_b = _longest_signal(background)
+    field = np.asarray(in_field, dtype=bool).ravel()
+    if field.shape != s.shape:
+        raise ValueError(f"in_field has {field.size} pixels, the images {s.size}")
+    d = s - b
+    lit = field & ok_s & ok_b
+    if not lit.any():
+        return None
+    level = float(np.median(d[lit]))
+    dark = np.flatnonzero(lit & (d < fraction * level))
+    return dark if dark.size >= MIN_DARK_PIXELS else None
+
+
+@dataclass(frozen=True)
+class GlareOffset:
+    """A capture's veil: ``value`` per unit exposure scale (ADU s⁻¹ f²), ``sigma`` its
+    standard error, ``n`` dark pixels used."""
+
+    value: float
+    sigma: float
+    n: int
+
+
+def glare_offset(capture: Any, background: Any, dark: NDArray[np.int64]) -> GlareOffset:
+    """The veil of ``capture``: mean signal over the dark pixels above the background's.
+
+    Saturated pixels (in either image) are left out; a dark region without a usable pixel
+    gives a zero offset with ``n = 0``.
+    """
+    c, ok_c = _longest_signal(capture)
+    b, ok_b = _longest_signal(background)
+    idx = np.asarray(dark, dtype=np.int64)
+    use = ok_c[idx] & ok_b[idx]
+    d = (c - b)[idx][use]
+    if d.size == 0:
+        return GlareOffset(0.0, 0.0, 0)
+    # a mean trimmed by 5 % at each end: a dark pixel that the sample does light (a footprint
+    # moved by the sample's height) is an outlier, not part of the veil; a median would be
+    # biased by the readings' quantisation (the veil is about 1 DN in a frame)
+    from scipy.stats import trim_mean
+
+    return GlareOffset(float(trim_mean(d, 0.05)), float(d.std() / math.sqrt(d.size)), int(d.size))
+
+
+def veil_shape(
+    background: Any, in_field: NDArray[np.bool_], field_angle: NDArray[np.float64], rings: int = 48
+) -> NDArray[np.float64]:
+    """The veil's relative distribution over the image (flat, mean 1 over the image circle).
+
+    A veil is spread like the camera's response (the fisheye's relative illumination falls
+    towards the edge of the field); the background image — the room's uniform ambient light
+    through the dome — shows that response. Its median over rings of equal field angle (the
+    beam's glow on the dome is a local outlier) gives the shape.
+    """
+    b, ok = _longest_signal(background)
+    field = np.asarray(in_field, dtype=bool).ravel()
+    th = np.asarray(field_angle, dtype=np.float64).ravel()
+    use = field & ok
+    out = np.zeros(b.shape)
+    if not use.any():
+        return out
+    edges = np.linspace(0.0, float(th[use].max()) + 1e-9, rings + 1)
+    ring = np.clip(np.searchsorted(edges, th, side="right") - 1, 0, rings - 1)
+    sub = np.flatnonzero(use)[::4]  # every 4th pixel: the medians need thousands, not all
+    rs, bs = ring[sub], b[sub]
+    order = np.argsort(rs, kind="stable")
+    rs, bs = rs[order], bs[order]
+    cuts = np.searchsorted(rs, np.arange(rings + 1))
+    med = np.array([np.median(bs[cuts[k]:cuts[k + 1]]) if cuts[k + 1] > cuts[k] else np.nan
+                    for k in range(rings)])  # fmt: skip
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    good = np.isfinite(med) & (med > 0)
+    if not good.any():
+        out[field] = 1.0
+        return out
+    prof = np.interp(th, centres[good], med[good])
+    out[field] = prof[field]
+    return out / float(out[field].mean())
+
+
+def veil(offset: GlareOffset, shape: NDArray[np.float64], dark: NDArray[np.int64]) -> NDArray:
+    """The per-pixel veil (flat) whose mean over the dark pixels is the measured offset."""
+    m = float(shape[np.asarray(dark)].mean())
+    return shape * (offset.value / m if m > 0 else 0.0)

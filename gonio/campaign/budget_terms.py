@@ -1,0 +1,403 @@
+"""The budget's terms: each effect's perturbation of the reduced samples, from what the
+laboratory knows.
+
+Every function returns :class:`~gonio.campaign.budget.Perturbation` s computed on the
+samples' own geometries (no image is rendered): the change ``δy`` of the sample values per
+unit of the effect, and the standard uncertainty ``u`` of the effect after the laboratory's
+correction (or, where it applied none, the specification's RMS magnitude: GUM §4.3, a
+Type B evaluation from the maker's data). Their physics, in the form the reduction sees it:
+
+``standard_certificate``
+    The real standard deviates from its certificate by a smooth function of the angles; the
+    certificate's uncertainty ``u`` is stated for a deviation of six orthonormal smooth
+    shapes (degree-two polynomials in ``cos θi``, ``cos θo`` and the out-of-plane term,
+    :func:`certificate_shapes`), each of weight ``u/√6``. Eq. 2 divides by the standard, so
+    ``δy = −y · shape`` at the standard's geometry, which is the sample's ``(θi, θo, Δφ)``.
+    Without the certificate correction the standard's known departure from Lambert's law is
+    an uncorrected systematic: ``δy = −y (R − 1)`` with ``u = 1``.
+``exposure``
+    The exposure scale of one capture (iris setting, lamp flicker) is wrong by an
+    independent relative error: ``δy = +y`` for the sample's capture, ``−y`` for the
+    standard's capture of that incidence (random per capture).
+``veiling_glare``
+    A veil of ``g`` times the mean image signal in every image: eq. 2 gives
+    ``(y + g ȳ)/(1 + g)``, i.e. ``δy = g (ȳ − y)`` with ``ȳ`` the mean of the BRDF over the
+    capture's pixels (evaluated with the fitted model on the calibrated pixel geometry).
+``geometry``
+    The calibrated dome parameters' covariance
+    (:class:`~gonio.calibration.mirror.MirrorCalibration`), split into independent
+    components; each moves every pixel's reflection direction, and
+    ``δy = f(wo + δwo) − f(wo)`` with the fitted model.
+``blur``
+    An image blur of angular RMS ``σ`` per axis (pixel area, diffraction) changes a smooth
+    BRDF by ``δy = ½ σ² ∇²f`` (second order of the Gaussian average; the Laplacian on the
+    sphere from the fitted model).
+
+References
+----------
+JCGM 100:2008, Evaluation of measurement data — Guide to the expression of uncertainty in
+measurement (GUM), §4.3 (Type B evaluation), §5.1.3 (sensitivity coefficients), §F.2.4.5
+(uncorrected known systematic effects included in the uncertainty).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gonio.campaign.budget import Perturbation
+
+__all__ = [
+    "blur_term",
+    "capture_groups",
+    "certificate_shapes",
+    "certificate_terms",
+    "direction_fields",
+    "direction_terms",
+    "exposure_terms",
+    "glare_term",
+    "mean_over_pixels",
+    "reillumination_term",
+    "tilt_terms",
+]
+
+
+def capture_groups(samples: Any) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Per sample: the index of its capture (θi, φi) and of its incidence (θi)."""
+    key = np.round(np.stack([samples.theta_i, samples.phi_i], 1), 9)
+    cap = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    inc = np.unique(np.round(samples.theta_i, 9), return_inverse=True)[1].ravel()
+    return cap.astype(np.int64), inc.astype(np.int64)
+
+
+def _relative(samples: Any) -> tuple[NDArray, NDArray, NDArray]:
+    d = np.abs(samples.phi_o - samples.phi_i) % (2.0 * math.pi)
+    return samples.theta_i, samples.theta_o, np.where(d > math.pi, 2.0 * math.pi - d, d)
+
+
+def _raw_shapes(ti: NDArray, to: NDArray, dphi: NDArray) -> NDArray:
+    xi, xo = np.cos(ti), np.cos(to)
+    return np.stack(
+        [np.ones_like(xi), xi, xo, xi * xo, np.sin(ti) * np.sin(to) * np.cos(dphi), xo * xo], -1
+    )
+
+
+@functools.cache
+def _orthonormaliser(max_deg: float = 85.0) -> NDArray:
+    c = math.cos(math.radians(max_deg))
+    x = c + (1.0 - c) * (np.arange(12) + 0.5) / 12
+    p = (np.arange(12) + 0.5) / 12 * math.pi
+    ti, to, dp = np.meshgrid(np.arccos(x), np.arccos(x), p, indexing="ij")
+    f = _raw_shapes(ti, to, dp).reshape(-1, 6)
+    return np.linalg.inv(np.linalg.cholesky(f.T @ f / f.shape[0])).T
+
+
+def certificate_shapes(samples: Any) -> NDArray[np.float64]:
+    """The six orthonormal deviation shapes at the samples' standard geometries, (n, 6)."""
+    return _raw_shapes(*_relative(samples)) @ _orthonormaliser()
+
+
+def certificate_terms(samples: Any, certificate: Any, corrected: bool) -> list[Perturbation]:
+    """The standard's terms: its certificate's uncertainty, or its uncorrected shape."""
+    y = samples.value
+    if certificate is None:
+        return []
+    u = float(certificate.expanded_uncertainty) / float(certificate.coverage_factor)
+    shapes = certificate_shapes(samples)
+    out = [
+        Perturbation(
+            f"standard_certificate[{j}]",
+            u / math.sqrt(6.0),
+            "1",
+            -y * shapes[:, j],
+            note="certificate U/k over six smooth shapes",
+        )
+        for j in range(6)
+    ]
+    if not corrected:
+        ti, to, dphi = _relative(samples)
+        top = math.radians(float(certificate.theta_o_deg[-1]))
+        r = certificate.factor_at(ti, np.minimum(to, top), dphi)
+        out.append(
+            Perturbation("standard_non_lambertian", 1.0, "1", -y * (r - 1.0), corrected=False,
+                         note="the certified departure from Lambert's law, not applied")
+        )  # fmt: skip
+    return out
+
+
+def exposure_terms(samples: Any, u_capture: float, name: str = "exposure") -> list[Perturbation]:
+    """Independent relative errors of each sample capture's and standard capture's scale."""
+    if u_capture <= 0:
+        return []
+    cap, inc = capture_groups(samples)
+    y = samples.value
+    return [
+        Perturbation(f"{name}[sample]", u_capture, "1", y, kind="random", groups=cap,
+                     note="per sample capture"),
+        Perturbation(f"{name}[standard]", u_capture, "1", -y, kind="random", groups=inc,
+                     note="per standard capture (shared by the rotations of an incidence)"),
+    ]  # fmt: skip
+
+
+def mean_over_pixels(model: Any, samples: Any, pixel_wo: NDArray, stride: int = 16) -> NDArray:
+    """Per capture group: the mean of ``model`` over the image's pixels (directions
+    ``pixel_wo`` (n, 3) in the dome frame, every ``stride``-th), in the sample frame of
+    the capture (rotation = −φi for an arm at azimuth 0)."""
+    from gonio.calibration.angles import to_sample_frame
+    from gonio.geometry import to_vector
+
+    cap, _ = capture_groups(samples)
+    w = np.asarray(pixel_wo)[::stride]
+    out = np.zeros(int(cap.max()) + 1 if cap.size else 0)
+    for g in range(out.size):
+        k = int(np.flatnonzero(cap == g)[0])
+        ti, pi = float(samples.theta_i[k]), float(samples.phi_i[k])
+        wo = to_sample_frame(w, -pi)
+        out[g] = float(np.mean(model(to_vector(ti, pi), wo)))
+    return out
+
+
+def glare_term(
+    samples: Any, model: Any, pixel_wo: NDArray, u_glare: float, corrected: bool
+) -> list[Perturbation]:
+    """The veil's term: ``δy = g (ȳ − y)`` per unit glare fraction."""
+    if u_glare <= 0:
+        return []
+    cap, _ = capture_groups(samples)
+    ybar = mean_over_pixels(model, samples, pixel_wo)[cap]
+    note = "residual after the dark-region estimate" if corrected else "uncorrected veil"
+    return [Perturbation("veiling_glare", u_glare, "1", ybar - samples.value,
+                         corrected=corrected, note=note)]  # fmt: skip
+
+
+def _tangent(w: NDArray) -> tuple[NDArray, NDArray]:
+    ref = np.where(np.abs(w[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(w, ref)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(w, e1)
+
+
+def blur_term(samples: Any, model: Any, sigma_rad: float, name: str = "blur") -> list[Perturbation]:
+    """``δy = ½ σ² ∇²f`` per unit of ``σ²`` (rad²): a Gaussian blur of the reflected
+    direction, uncorrected. ``u`` is ``σ²``."""
+    if sigma_rad <= 0:
+        return []
+    wi, wo = samples.wi, samples.wo
+    h = 0.01
+    f0 = model(wi, wo)
+    lap = np.zeros_like(f0)
+    for e in _tangent(wo):
+        fp = model(wi, _unit(wo + h * e))
+        fm = model(wi, _unit(wo - h * e))
+        lap += (fp + fm - 2.0 * f0) / (h * h)
+    return [Perturbation(name, sigma_rad**2, "rad²", 0.5 * lap, corrected=False,
+                         note="image blur: ½ σ² ∇²f")]  # fmt: skip
+
+
+def _unit(w: NDArray) -> NDArray:
+    return w / np.linalg.norm(w, axis=-1, keepdims=True)
+
+
+#: cells per side of the equal-area square in which direction changes are averaged
+GRID = 48
+#: realisations of a random dome figure averaged for its term (Monte Carlo of its model)
+FIGURE_REALISATIONS = 4
+#: every how many pixels of the image circle the direction fields use
+FIELD_STRIDE = 4
+#: of those, every how many a ray is traced through a random dome figure
+FIGURE_STRIDE = 2
+
+
+def _cell(w: NDArray, grid: int = GRID) -> NDArray[np.int64]:
+    from gonio.calibration.thinning import hemisphere_to_square
+
+    q = np.clip((hemisphere_to_square(w) + 1.0) / 2.0, 0.0, 1.0 - 1e-12)
+    return (q[:, 0] * grid).astype(np.int64) * grid + (q[:, 1] * grid).astype(np.int64)
+
+
+def _cell_means(w0: NDArray, w1: NDArray, grid: int = GRID) -> NDArray:
+    """Mean change ``w1 − w0`` of dome directions per cell (grid², 3)."""
+    pc = _cell(w0, grid)
+    d = w1 - w0
+    cnt = np.bincount(pc, minlength=grid * grid)
+    out = np.stack([np.bincount(pc, d[:, k], grid * grid) for k in range(3)], 1)
+    return out / np.maximum(cnt, 1)[:, None]
+
+
+def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
+    """The direction-change fields of the geometric terms, per unit of each (cached on
+    ``cal``): ``(name, u, unit, cell means (grid², 3), corrected)``.
+
+    * ``geometry[j]``: the mirror calibration's principal components (1 σ each);
+    * ``lens_scale``: the lens calibration's focal-length uncertainty (both axes, 1 σ);
+    * ``dome_figure[k]``: random dome figures of the specified RMS slope error
+      (:func:`gonio.simulator.lbl_effects.slope_field`, realisations that are not the
+      instrument's), each with ``u = 1/√K`` so that their sum of squares is the mean.
+    """
+    got = cal.__dict__.get("_direction_fields")
+    if got is not None:
+        return got
+
+    out: list[tuple[str, float, str, NDArray, bool]] = []
+    lens = cal.lens_model()
+    mc = cal.mirror
+    if lens is None or mc is None:
+        cal.__dict__["_direction_fields"] = out
+        return out
+    from gonio.calibration.angles import reflection_directions
+
+    # every FIELD_STRIDE-th pixel of the image circle: a cell mean needs a few, and the
+    # Kannala-Brandt inverse of the whole grid takes a second
+    uv = lens.pixel_grid().reshape(-1, 2)
+    pix = np.flatnonzero(lens.in_field(uv))[::FIELD_STRIDE]
+    cam = lens.unproject(uv[pix])
+    wo0, ok0 = reflection_directions(cam, mc.geometry, mc.method)
+
+    def field(cam1: NDArray, geo1: Any) -> NDArray:
+        wo1, ok1 = reflection_directions(cam1, geo1, mc.method)
+        both = ok0 & ok1
+        return _cell_means(wo0[both], wo1[both])
+
+    vals, vecs = np.linalg.eigh(np.asarray(mc.covariance, dtype=np.float64))
+    for j in range(vals.size):
+        if vals[j] > 0:
+            g = mc.geometry
+            for name, dv in zip(mc.names, vecs[:, j] * math.sqrt(vals[j])):
+                g = _moved(g, name, dv)
+            out.append((f"geometry[{j}]", 1.0, "σ", field(cam, g), True))
+    u_f = float((cal.lens or {}).get("fx_u_rel", 0.0))
+    if u_f > 0:
+        from dataclasses import replace
+
+        scaled = replace(lens, fx=lens.fx * (1 + u_f), fy=lens.fy * (1 + u_f))
+        cam1 = scaled.unproject(uv[pix])
+        out.append(("lens_scale", u_f, "1", field(cam1, mc.geometry) / u_f, True))
+    slope = spec_rms(cal.specification.get("dome_slope_error"))
+    if slope > 0:
+        out += _figure_fields(mc, cam, wo0, ok0, slope)
+    cal.__dict__["_direction_fields"] = out
+    return out
+
+
+def _figure_fields(mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float) -> list:
+    from gonio.simulator import lbl_effects as le
+    from gonio.simulator.optics import Mirror
+
+    g = mc.geometry
+    mirror = Mirror(g.kind, g.radius, g.half_separation, 0.5, 0.45)
+    keep = np.flatnonzero(ok0)[::FIGURE_STRIDE]  # a few rays per cell are enough
+    r = max(mirror.semi_axes)
+    out = []
+    k_n = FIGURE_REALISATIONS
+    for k in range(k_n):
+        seed = 2**40 + k  # a realisation of the dome-figure model, not this instrument's
+
+        def sl(p, seed=seed):
+            return le.slope_field(p, 1.0, r, seed)
+
+        tr = le.trace_perturbed(mirror, cam[keep], sl, 0.0)
+        ok = tr["valid"]
+        out.append((f"dome_figure[{k}]", slope / math.sqrt(k_n), "rad",
+                    _cell_means(wo0[keep][ok], tr["wo"][ok]), False))  # fmt: skip
+    return out
+
+
+def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
+    """Each direction field of :func:`direction_fields` as the samples' ``δy`` (per unit):
+    ``f(wo + δwo) − f(wo)`` at each sample's dome direction (an arm at azimuth 0)."""
+    fields = direction_fields(cal)
+    if not fields:
+        return []
+    rot = -samples.phi_i
+    w_s = samples.wo
+    c, s = np.cos(rot), np.sin(rot)
+    w_dome = np.stack([c * w_s[:, 0] - s * w_s[:, 1], s * w_s[:, 0] + c * w_s[:, 1], w_s[:, 2]], 1)
+    cells = _cell(w_dome)
+    f0 = model(samples.wi, w_s)
+    out = []
+    for name, u, unit, means, corrected in fields:
+        w1 = _unit(w_dome + means[cells])
+        back = np.stack([c * w1[:, 0] + s * w1[:, 1], -s * w1[:, 0] + c * w1[:, 1], w1[:, 2]], 1)
+        note = "direction change of the calibrated geometry" if corrected else "dome figure"
+        out.append(Perturbation(name, u, unit, model(samples.wi, back) - f0,
+                                corrected=corrected, note=note))  # fmt: skip
+    return out
+
+
+def tilt_terms(samples: Any, model: Any, tilt_rms: float) -> list[Perturbation]:
+    """An unknown tilt of the sample's normal (RMS ``tilt_rms`` rad, random azimuth): two
+    components, about the sample's x and y axes, each ``u = tilt_rms/√2``.
+
+    The sample sees ``T wi`` and ``T wo`` and is lit by ``cos θi'`` instead of the standard's
+    ``cos θi``: ``y = f(T wi, T wo) cos θi' / cos θi``; ``δy`` per radian by a difference.
+    """
+    if tilt_rms <= 0:
+        return []
+    wi, wo = samples.wi, samples.wo
+    f0 = model(wi, wo)
+    h = 1e-3
+    out = []
+    for axis, name in ((0, "sample_tilt[x]"), (1, "sample_tilt[y]")):
+        ca, sa = math.cos(h), math.sin(h)
+        if axis == 0:
+            rm = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+        else:
+            rm = np.array([[ca, 0.0, sa], [0.0, 1.0, 0.0], [-sa, 0.0, ca]])
+        wi1, wo1 = wi @ rm.T, wo @ rm.T
+        cos_ratio = np.clip(wi1[:, 2], 0.0, None) / np.maximum(wi[:, 2], 1e-12)
+        dy = (model(wi1, wo1) * cos_ratio - f0) / h
+        out.append(Perturbation(name, tilt_rms / math.sqrt(2.0), "rad", dy, corrected=False,
+                                note="sample tilt, specification"))  # fmt: skip
+    return out
+
+
+def _albedo_grid(model: Any, theta: NDArray, n: int = 48) -> NDArray:
+    """Directional albedo at polar angles ``theta`` (φ = 0) by a midpoint rule in
+    (cos² θo, φo), ``n × 2n`` directions (rolled brass: within 2.3 % of the quadrature)."""
+    u = (np.arange(n) + 0.5) / n  # cos² θo: dω cos θo = ½ d(cos²θo) dφ
+    p = (np.arange(2 * n) + 0.5) / (2 * n) * 2.0 * math.pi
+    ct = np.sqrt(u)[:, None]
+    st = np.sqrt(1.0 - u)[:, None]
+    wo = np.stack(np.broadcast_arrays(st * np.cos(p), st * np.sin(p), ct), -1).reshape(-1, 3)
+    out = []
+    for t in theta:
+        wi = np.array([math.sin(t), 0.0, math.cos(t)])
+        f = np.asarray(model(wi, wo), dtype=np.float64)
+        out.append(float(f.mean()) * math.pi)
+    return np.array(out)
+
+
+def reillumination_term(
+    samples: Any, model: Any, r: float, rho_standard: float, lit_fraction: NDArray
+) -> list[Perturbation]:
+    """Light the dome returns to the sample (fraction ``r`` of what it reflects): an extra
+    diffuse radiance ``r A a(θi) a(θo) / π`` on the sample and ``r A ρ² / π`` on the
+    standard (``a`` the directional albedo, ``A`` the lit fraction of the sample disk), so
+    ``δy = A [a(θi) a(θo) / π − y ρ]`` per unit ``r`` (uncorrected, specification)."""
+    if r <= 0:
+        return []
+    th = np.radians(np.linspace(0.0, 89.0, 12))
+    a = _albedo_grid(model, th)
+    ai = np.interp(samples.theta_i, th, a)
+    ao = np.interp(samples.theta_o, th, a)
+    dy = lit_fraction * (ai * ao / math.pi - samples.value * rho_standard)
+    return [Perturbation("reillumination", r, "1", dy, corrected=False,
+                         note="dome -> lens front -> sample, specification")]  # fmt: skip
+
+
+def _moved(g: Any, name: str, dv: float) -> Any:
+    from gonio.calibration.mirror import _apply, _get
+
+    return _apply(g, {name: _get(g, name) + float(dv)})
+
+
+def spec_rms(spec: Mapping[str, Any] | None) -> float:
+    """RMS of a specification entry ``{"typical", "spread"}`` (0 if absent)."""
+    if not spec:
+        return 0.0
+    return float(math.hypot(float(spec.get("typical", 0.0)), float(spec.get("spread", 0.0))))

@@ -1,0 +1,317 @@
+"""The campaign's reduction as a laboratory makes it: calibrated, corrected, truth-free.
+
+:func:`laboratory_view` is the boundary between the simulated instrument and the
+laboratory: it keeps of each side-car only the fields a real instrument writes (exposure,
+marked f-number, the camera's read-out parameters, the commanded incidence and rotation, the
+campaign clock) and drops the simulator's description of itself (its true lens, mirror,
+source, sample BRDF, effect magnitudes). :func:`reduce_incidence` reduces one incidence's
+captures with the laboratory's calibration
+(:class:`~gonio.calibration.laboratory.LabCalibration`) and the corrections of
+:data:`CORRECTIONS`, each of which can be switched off (ablation):
+
+``geometry``
+    the calibrated lens and dome geometry instead of the nominal design;
+``standard``
+    eq. 2 with the standard's certified BRDF instead of a Lambertian one;
+``exposure``
+    effective f-numbers from the f-stop ladder and each bracket's own overlaps instead of
+    the marked ones;
+``glare``
+    the veil measured in the image's known-dark region subtracted from the sample's and the
+    standard's signals.
+
+:func:`campaign_budget` then builds the fit's uncertainty budget from the same knowledge
+(:mod:`gonio.campaign.budget`, :mod:`gonio.campaign.budget_terms`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "CORRECTIONS",
+    "SENSOR_FIELDS",
+    "SIDECAR_FIELDS",
+    "campaign_budget",
+    "check_corrections",
+    "field_angle",
+    "laboratory_view",
+    "reduce_incidence",
+]
+
+#: the corrections a laboratory applies (each ablatable)
+CORRECTIONS = ("geometry", "standard", "exposure", "glare")
+
+#: side-car fields a real instrument writes (everything else is the simulator's truth):
+#: the exposure and the marked f-number, the commanded incidence and rotation, the campaign
+#: clock, the nominal optics (``lens``, ``mirror``: the design, which the simulator's
+#: side-car records instead of its imperfect instrument) and the standard's certified ρ
+SIDECAR_FIELDS = frozenset({
+    "exposure_s", "f_number", "theta_i", "phi_i", "sample_rotation", "sample", "seed",
+    "noise", "binning", "band", "shape", "dtype", "units", "frame", "instrument", "bracket",
+    "filter_nm", "filter_index", "time_s", "clock_s", "rho_standard", "lens", "mirror",
+})  # fmt: skip
+
+#: the camera's read-out parameters a side-car carries (data sheet / EMVA 1288 figures)
+SENSOR_FIELDS = frozenset({
+    "gain_e_per_dn", "read_noise_e", "black_level_dn", "saturation_dn", "adc_bits", "max_dn",
+    "response_gamma", "dark_current_e_s", "pixel_pitch_m",
+})  # fmt: skip
+
+
+def check_corrections(corrections: Iterable[str] | None) -> tuple[str, ...]:
+    """The corrections as a tuple (None: all of :data:`CORRECTIONS`); unknown ones raise."""
+    if corrections is None:
+        return CORRECTIONS
+    got = tuple(dict.fromkeys(str(c) for c in corrections))
+    bad = sorted(set(got) - set(CORRECTIONS))
+    if bad:
+        raise ValueError(f"corrections {bad} are unknown; expected some of {list(CORRECTIONS)}")
+    return got
+
+
+def laboratory_view(frames: Sequence[tuple[Any, Mapping[str, Any]]]) -> list[tuple[Any, dict]]:
+    """The frames with side-cars cut down to what a real instrument records."""
+    out = []
+    for img, meta in frames:  # only the kept fields are read (a test guards the others)
+        m = {k: meta[k] for k in meta if k in SIDECAR_FIELDS}
+        if "sensor" in meta and isinstance(meta["sensor"], Mapping):
+            sensor = meta["sensor"]
+            m["sensor"] = {k: sensor[k] for k in sensor if k in SENSOR_FIELDS}
+        out.append((img, m))
+    return out
+
+
+def _fstop_corrected(cap: Any, cal: Any) -> tuple[Any, int]:
+    from gonio.calibration.fstops import correct_capture, overlap_ratios
+
+    if cal is None:
+        return cap, len(cap.frames)
+    ov = overlap_ratios(cap) if len(cap.frames) > 1 else []
+    return correct_capture(cap, cal, ov), len(cap.frames)
+
+
+def reduce_incidence(
+    standard: Sequence[Any],
+    background: Sequence[Any],
+    measured: Mapping[float, Sequence[Any]],
+    cal: Any,
+    *,
+    nominal: Mapping[str, Any] | None = None,
+    corrections: Iterable[str] | None = None,
+    seeds: Mapping[float, int] | None = None,
+    debias: bool = False,
+    select: Mapping[str, Any] | None = None,
+) -> list[tuple[Any, dict[str, Any]]]:
+    """Reduce one incidence: the standard, background and sample brackets (frames) of each
+    sample rotation -> one :class:`~gonio.samples.BRDFSamples` per rotation with what the
+    budget needs to know of it (frames used, the veil measured).
+
+    Parameters
+    ----------
+    standard, background : sequence of (image, side-car)
+    measured : mapping
+        Sample rotation (degrees) -> its frames.
+    cal : LabCalibration or None
+        None: no calibration (the nominal design is used).
+    nominal : mapping, optional
+        The instrument's design: ``lens`` (a lens dict or FisheyeLens) and ``mirror`` (a
+        mirror dict); used where a correction is off or ``cal`` lacks the knowledge.
+        Default: the nominal optics the standard's side-car records.
+    corrections : iterable of str, optional
+        Of :data:`CORRECTIONS` (default all); those whose knowledge ``cal`` lacks are skipped.
+    seeds : mapping, optional
+        Rotation -> the selection's seed.
+    debias : bool
+        Eq. 2's second-order debias.
+    select : mapping, optional
+        ``reduce_selected``'s thinning options.
+    """
+    from gonio.calibration.glare import dark_region, glare_offset, veil, veil_shape
+    from gonio.calibration.reduce import Capture, load_lens, pixel_geometry, reduce_selected
+
+    corr = set(check_corrections(corrections))
+    std = Capture(laboratory_view(standard))
+    bg = Capture(laboratory_view(background))
+    opts: dict[str, Any] = dict(select or {})
+    if nominal is None:
+        nominal = {"lens": std.meta.get("lens"), "mirror": std.meta.get("mirror")}
+    opts["lens"], opts["mirror"] = nominal["lens"], nominal["mirror"]
+    if cal is not None and "geometry" in corr:
+        geo = cal.reduction_options()
+        opts.update({k: geo[k] for k in ("lens", "mirror", "method") if k in geo})
+    if cal is not None and "standard" in corr and cal.certificate is not None:
+        opts["certificate"] = cal.certificate
+    fst = cal.fstops if cal is not None and "exposure" in corr else None
+    std, n_std = _fstop_corrected(std, fst)
+    bg, _ = _fstop_corrected(bg, fst)  # the background too: eq. 2 and the veil subtract it
+    dark = None
+    if "glare" in corr and cal is not None:
+        h, w = np.asarray(std.images[0]).shape
+        lens = load_lens(opts["lens"], w, h)
+        _, gvalid = pixel_geometry(lens, opts["mirror"], opts.get("method", "eq3"))
+        dark = dark_region(std, bg, gvalid)
+    g_s = None
+    if dark is not None:
+        shape = veil_shape(bg, gvalid, field_angle(lens))
+        g_s = glare_offset(std, bg, dark)
+    out = []
+    for rot, frames in measured.items():
+        meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames)), fst)
+        kw = dict(opts)
+        info: dict[str, Any] = {
+            "rotation_deg": float(rot),
+            "n_frames": n_meas,
+            "n_frames_standard": n_std,
+            "stops": [float(m["f_number"]) for _, m in frames],
+            "stops_standard": [float(m["f_number"]) for _, m in standard],
+        }
+        if g_s is not None:
+            g_m = glare_offset(meas, bg, dark)
+            kw["glare"] = (veil(g_m, shape, dark), veil(g_s, shape, dark))
+            info["glare"] = {"measured": g_m.value, "standard": g_s.value, "n_dark": g_m.n}
+        seed = None if seeds is None else seeds.get(rot)
+        red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
+        info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
+        out.append((red.samples, info))
+    return out
+
+
+_FIELD_ANGLES: dict[str, np.ndarray] = {}
+
+
+def field_angle(lens: Any) -> np.ndarray:
+    """Field angle of every pixel (flat), cached per lens (the Kannala-Brandt inverse of a
+    640 x 480 grid takes a second)."""
+    import json
+
+    key = json.dumps(lens.to_dict(), sort_keys=True)
+    got = _FIELD_ANGLES.get(key)
+    if got is None:
+        if len(_FIELD_ANGLES) > 8:
+            _FIELD_ANGLES.clear()
+        got = _FIELD_ANGLES[key] = lens.field_angle(lens.pixel_grid().reshape(-1, 2)).ravel()
+        got.setflags(write=False)
+    return got
+
+
+def campaign_budget(
+    result: Any,
+    samples: Any,
+    cal: Any,
+    *,
+    corrections: Iterable[str] | None = None,
+    infos: Sequence[Mapping[str, Any]] = (),
+    k: float = 2.0,
+):
+    """The GUM budget of a fit from the laboratory's knowledge (see the module docstring of
+    :mod:`gonio.campaign.budget_terms` for each term).
+
+    With ``cal`` None (the ideal, uncalibrated instrument) only the statistical term is
+    there.
+    """
+    from gonio.campaign import budget_terms as bt
+    from gonio.campaign.budget import Sensitivity, build_budget
+
+    corr = set(check_corrections(corrections))
+    terms = []
+    model = result.model
+    if cal is not None:
+        spec = cal.specification
+        terms += bt.certificate_terms(samples, cal.certificate, "standard" in corr)
+        terms += _exposure(samples, cal, spec, corr, infos)
+        g = bt.spec_rms(spec.get("veiling_glare"))
+        if g > 0:
+            glare_done = "glare" in corr and any("glare" in i for i in infos)
+            u = 0.2 * g if glare_done else g
+            lens = cal.lens_model()
+            if lens is not None and cal.mirror is not None:
+                from gonio.calibration.reduce import pixel_geometry
+
+                wo, ok = pixel_geometry(lens, cal.mirror.geometry, cal.mirror.method)
+                terms += bt.glare_term(samples, model, wo[ok], u, glare_done)
+        if "geometry" in corr:
+            terms += bt.direction_terms(samples, model, cal)
+        sigma = _blur_sigma(cal)
+        terms += bt.blur_term(samples, model, sigma)
+        terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))
+        r = bt.spec_rms(spec.get("reillumination"))
+        if r > 0:
+            terms += bt.reillumination_term(samples, model, r, _rho_std(cal, samples),
+                                            _lit_fraction(cal, samples))  # fmt: skip
+    sens = Sensitivity(result, samples) if terms else None
+    return build_budget(result, samples, terms, sensitivity=sens, k=k)
+
+
+def _exposure(samples, cal, spec, corr, infos) -> list:
+    from gonio.campaign import budget_terms as bt
+
+    flicker = bt.spec_rms(spec.get("lamp_flicker"))
+    m = max((int(i.get("n_frames", 1)) for i in infos), default=1)
+    if "exposure" in corr and cal.fstops is not None:
+        iris = cal.fstops.sigma_iris
+        u = math.hypot(iris / math.sqrt(m), flicker)
+        terms = bt.exposure_terms(samples, u)
+        u_tab = _table_u(cal.fstops, infos)
+        if u_tab > 0:  # the ladder's own uncertainty: the standard's stops vs the sample's
+            terms.append(bt.Perturbation("exposure_table", u_tab, "1", samples.value,
+                                         note="f-stop ladder table, the stops used"))  # fmt: skip
+        return terms
+    err = math.hypot(
+        bt.spec_rms(spec.get("fstop_error")), bt.spec_rms(spec.get("iris_repeatability"))
+    )
+    series = 0.02 * bt.spec_rms(spec.get("fstop_series"))  # marked vs √2^k: up to 2 %
+    u = math.sqrt(err**2 + series**2 + flicker**2)
+    return bt.exposure_terms(samples, u, "exposure(uncorrected)") if u > 0 else []
+
+
+def _table_u(fst: Any, infos: Sequence[Mapping[str, Any]]) -> float:
+    """RMS over the captures of the ladder table's uncertainty of the ratio between the
+    standard's and the sample's stops (their mean log gains, independent stops)."""
+    u = fst.u_log_gain
+    vals = []
+    for i in infos:
+        s, m = i.get("stops_standard") or [], i.get("stops") or []
+        if not s or not m:
+            continue
+        us = math.sqrt(sum(u.get(float(x), 0.0) ** 2 for x in s)) / len(s)
+        um = math.sqrt(sum(u.get(float(x), 0.0) ** 2 for x in m)) / len(m)
+        vals.append(us * us + um * um)
+    return math.sqrt(sum(vals) / len(vals)) if vals else 0.0
+
+
+def _rho_std(cal: Any, samples: Any) -> float:
+    if cal.certificate is not None:
+        return float(cal.certificate.rho)
+    return float(samples.metadata.get("rho_standard", 0.99))
+
+
+def _lit_fraction(cal: Any, samples: Any) -> np.ndarray:
+    """The beam footprint's share of the sample disk, ``min(r_spot² / (r_s² cos θi), 1)``,
+    from the design's spot and sample radii."""
+    d = cal.info.get("design", {})
+    rs, rspot = float(d.get("sample_radius", 0.008)), float(d.get("spot_radius", 0.003))
+    return np.minimum(rspot**2 / (rs**2 * np.maximum(np.cos(samples.theta_i), 1e-3)), 1.0)
+
+
+def _blur_sigma(cal: Any, f_number: float = 5.6) -> float:
+    """Angular RMS blur (rad) the specification implies at a typical working stop: the
+    simulator's point-spread model (pixel area, diffraction, defocus;
+    :func:`gonio.simulator.lbl_effects.psf_sigma_px`) at the specified magnitudes, over the
+    calibrated lens's pixels per radian."""
+    lens = cal.lens_model()
+    pitch = float(cal.info.get("pixel_pitch_m", 0.0))
+    if lens is None or not pitch > 0:
+        return 0.0
+    from gonio.campaign.budget_terms import spec_rms
+    from gonio.simulator.lbl_effects import psf_sigma_px
+
+    mags = {k: spec_rms(cal.specification.get(k))
+            for k in ("pixel_fill", "diffraction_wavelength", "focus_error")}  # fmt: skip
+    radius = float(cal.mirror.geometry.radius) if cal.mirror is not None else 0.15
+    px = psf_sigma_px(f_number, mags, pitch, float(lens.fx), 0.5 * radius)
+    return px / float(lens.fx)

@@ -1,0 +1,88 @@
+"""The uncertainty-budget figure of a campaign (``plots/budget.png``).
+
+One panel per fitted parameter: a horizontal bar per source of uncertainty — the fit's
+statistical standard error and each effect's contribution (terms with several components,
+such as ``standard_certificate[0..5]``, summed in quadrature under their name) — as a
+relative standard uncertainty on a logarithmic axis, with the combined standard uncertainty
+and the expanded uncertainty (``k = 2``) as vertical lines. Uncorrected terms are hatched.
+
+References
+----------
+JCGM 100:2008, Evaluation of measurement data — Guide to the expression of uncertainty in
+measurement (GUM), §7.2 (reporting the components of the combined standard uncertainty).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from gonio.plots.figures import _figure, _save
+
+__all__ = ["budget_rows", "plot_budget"]
+
+
+def budget_rows(budget: Mapping[str, Any]) -> list[tuple[str, dict[str, float], bool]]:
+    """``(source, relative contribution per parameter, corrected)``: the statistical term
+    first, then the effects (components of one name combined in quadrature)."""
+    params = budget["params"]
+
+    def rel(v: float | None, n: str) -> float:
+        p = abs(params[n])
+        return math.inf if v is None or not math.isfinite(v) else (v / p if p else v)
+
+    rows: list[tuple[str, dict[str, float], bool]] = [
+        ("statistical", {n: rel(budget["statistical"][n], n) for n in params}, True)
+    ]
+    groups: dict[str, tuple[dict[str, float], bool]] = {}
+    for name, t in budget["terms"].items():
+        base = name.split("[", 1)[0]
+        acc, corr = groups.get(base, ({n: 0.0 for n in params}, True))
+        for n in params:
+            acc[n] = math.hypot(acc[n], rel(t["contribution"][n], n))
+        groups[base] = (acc, corr and bool(t.get("corrected", True)))
+    rows += [(k, v, c) for k, (v, c) in groups.items()]
+    return rows
+
+
+def plot_budget(budget: Mapping[str, Any], path: str | os.PathLike, *, title: str = "") -> Path:
+    """Draw the budget (a campaign summary's ``budget`` entry) to ``path`` (PNG, atomic)."""
+    params = list(budget["params"])
+    if not params:
+        raise ValueError("the budget has no fitted parameter to plot")
+    rows = budget_rows(budget)
+    n_p = len(params)
+    fig = _figure(3.2 * n_p + 1.6, 0.32 * len(rows) + 1.6)
+    axes = fig.subplots(1, n_p, sharey=True, squeeze=False)[0]
+    ys = list(range(len(rows)))[::-1]
+    for ax, p in zip(axes, params):
+        vals = [max(r[1][p], 1e-9) for r in rows]
+        colours = ["0.4" if i == 0 else ("tab:blue" if r[2] else "tab:orange")
+                   for i, r in enumerate(rows)]  # fmt: skip
+        bars = ax.barh(ys, [100 * v for v in vals], color=colours)
+        for bar, r in zip(bars, rows):
+            if not r[2]:
+                bar.set_hatch("//")
+        pv = abs(budget["params"][p])
+        for key, style in (("combined", "-"), ("expanded", "--")):
+            v = budget[key][p]
+            if v is not None and math.isfinite(v) and pv:
+                ax.axvline(100 * v / pv, color="k", ls=style, lw=1,
+                           label=f"{key} {100 * v / pv:.3g}%")  # fmt: skip
+        ax.set_xscale("log")
+        top = max(100 * max(vals), 1e-6)
+        ax.set_xlim(max(top * 1e-4, 1e-6), top * 3)
+        ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=9)
+        ax.set_xlabel("relative standard uncertainty (%)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6, loc="lower right")
+    axes[0].set_yticks(ys)
+    axes[0].set_yticklabels([r[0] for r in rows], fontsize=7)
+    k = budget.get("k", 2.0)
+    fig.suptitle(f"{title}  uncertainty budget (GUM, k = {k:g}; hatched: uncorrected)",
+                 fontsize=9)  # fmt: skip
+    fig.tight_layout()
+    return _save(fig, path)

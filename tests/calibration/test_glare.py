@@ -1,0 +1,86 @@
+"""Veiling glare from a known-dark region (calibration/glare.py) and the reduction's hooks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from gonio.calibration import Capture
+from gonio.calibration.glare import dark_region, glare_offset, veil, veil_shape
+
+SENSOR = {"gain_e_per_dn": 10.0, "read_noise_e": 8.0, "black_level_dn": 64.0,
+          "saturation_dn": 4064.0}  # fmt: skip
+
+
+def _cap(signal_dn, rng, f_number=4.0):
+    raw = 64.0 + signal_dn + rng.normal(0.0, 0.8, signal_dn.shape)
+    meta = {"exposure_s": 0.01, "f_number": f_number, "sensor": SENSOR}
+    return Capture.single(np.clip(np.rint(raw), 0, 4095).astype(np.uint16), meta)
+
+
+def test_the_veil_is_measured_where_no_sample_light_arrives():
+    rng = np.random.default_rng(0)
+    h, w = 60, 80
+    v, u = np.mgrid[:h, :w]
+    r = np.hypot(u - 40, v - 30) / 30.0
+    field = r <= 1.0
+    resp = np.where(field, 1.0 - 0.3 * r**2, 0.0)  # relative illumination
+    occluded = field & (u < 22)  # the lens body's shadow, dark in every image
+    amb = 200.0 * resp
+    light = np.where(field & ~occluded, 1.0, 0.0)
+    std_sig = amb + 2000.0 * resp * light + 40.0 * resp  # 40 DN of veil at the centre
+    meas_sig = amb + 900.0 * resp * light + 15.0 * resp
+    std, bg, meas = _cap(std_sig, rng), _cap(amb, rng), _cap(meas_sig, rng)
+    dark = dark_region(std, bg, field)
+    assert dark is not None and set(dark) <= set(np.flatnonzero(occluded.ravel()))
+    assert dark.size > 0.9 * occluded.sum()
+    scale = 0.01 / 4.0**2
+    g_s, g_m = glare_offset(std, bg, dark), glare_offset(meas, bg, dark)
+    mean_resp_dark = resp.ravel()[dark].mean()
+    assert g_s.value * scale == pytest.approx(40.0 * mean_resp_dark, rel=0.03)
+    assert g_m.value * scale == pytest.approx(15.0 * mean_resp_dark, rel=0.06)
+    shape = veil_shape(bg, field, r.ravel() * math.pi / 2)
+    vm = veil(g_m, shape, dark).reshape(h, w) * scale
+    centre = vm[30, 40]
+    assert centre == pytest.approx(15.0, rel=0.08)  # the veil's full height at the centre
+
+
+def test_no_dark_region_and_bad_fraction():
+    rng = np.random.default_rng(1)
+    field = np.ones((20, 20), bool)
+    std, bg = _cap(np.full((20, 20), 1000.0), rng), _cap(np.full((20, 20), 50.0), rng)
+    assert dark_region(std, bg, field) is None
+    with pytest.raises(ValueError, match="fraction"):
+        dark_region(std, bg, field, fraction=1.5)
+
+
+def test_certificate_factor_multiplies_eq2():
+    sim = pytest.importorskip("gonio.simulator")
+    from gonio.calibration import reduce_selected
+
+    class Flat:  # a certificate stating R = 1.1 everywhere up to 80 deg
+        rho = 0.99
+        theta_o_deg = (0.0, 80.0)
+
+        def check_covers(self, theta_i, theta_o=None):
+            if np.degrees(np.max(theta_i)) > 80.0:
+                raise ValueError("theta_i not covered")
+
+        def factor_at(self, ti, to, dphi):
+            return np.full(np.shape(to), 1.1)
+
+    inst = sim.LBLInstrument(width=320, height=240)
+    ti = math.radians(30.0)
+    std = Capture(inst.bracket("standard", ti, 0.0, noise=False))
+    bg = Capture(inst.bracket(None, ti, 0.0, noise=False))
+    meas = Capture(inst.bracket("rolled_brass", ti, 0.0, noise=False))
+    plain = reduce_selected(meas, std, bg, rng=1).samples
+    cert = reduce_selected(meas, std, bg, rng=1, certificate=Flat()).samples
+    top = plain.theta_o <= math.radians(80.0)  # the same selection (same seed), covered
+    assert np.allclose(cert.value, 1.1 * plain.value[top])
+    assert np.allclose(cert.sigma, 1.1 * plain.sigma[top])
+    steep = [Capture(inst.bracket(x, math.radians(85.0), 0.0, noise=False))
+             for x in ("rolled_brass", "standard", None)]  # fmt: skip
+    with pytest.raises(ValueError, match="covered"):
+        reduce_selected(*steep, rng=1, certificate=Flat())
