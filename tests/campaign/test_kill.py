@@ -119,8 +119,13 @@ def _cornell(tmp_path: Path, points: list) -> None:
     plan.write_text(PLAN)
     args = ["--instrument", "cornell", "--plan", str(plan)]
     ref = tmp_path / "ref"
+    t0 = time.monotonic()
     subprocess.run(_cmd(args, ref), check=True, capture_output=True)
+    t_ref = time.monotonic() - t0
     out = tmp_path / "killed"
+    # a time point is a fraction of the uninterrupted run's wall time (absolute seconds were
+    # past the end of a fast run on an idle machine: the campaign finished before its kill)
+    points = [_after(w.fraction * t_ref) if isinstance(w, _Fraction) else w for w in points]
     assert all(_kill_when(args, out, w) for w in points)
     subprocess.run(_cmd(args, out, "--resume"), check=True, capture_output=True)
     # plan.json names the plan file's path: the same plan, another folder
@@ -141,13 +146,20 @@ def _after(seconds: float):
     return lambda out, t: t >= seconds
 
 
+class _Fraction:
+    """A kill point at this fraction of the uninterrupted run's wall time."""
+
+    def __init__(self, fraction: float) -> None:
+        self.fraction = fraction
+
+
 def test_lbl_killed_in_the_capture_and_in_the_fit_resumes_identically(tmp_path):
     _lbl(tmp_path, [_last_fifth_of_capture(N_GROUPS_LBL - 1), _in_fit])
 
 
 def test_cornell_killed_in_the_measurement_and_in_the_fit_resumes_identically(tmp_path):
     rng = np.random.default_rng(15)
-    _cornell(tmp_path, [_after(float(rng.uniform(1.0, 2.5))), _in_fit])
+    _cornell(tmp_path, [_Fraction(float(rng.uniform(0.2, 0.6))), _in_fit])
 
 
 @pytest.mark.slow
@@ -156,7 +168,7 @@ def test_random_kill_points_sweep(tmp_path, seed):
     rng = np.random.default_rng(seed)
     lbl = [_last_fifth_of_capture(int(k)) for k in sorted(rng.integers(1, N_GROUPS_LBL, 2))]
     _lbl(tmp_path / "lbl", [*lbl, _in_fit])
-    _cornell(tmp_path / "cornell", [_after(float(rng.uniform(0.5, 3.0))), _in_fit])
+    _cornell(tmp_path / "cornell", [_Fraction(float(rng.uniform(0.1, 0.7))), _in_fit])
 
 
 def test_sigterm_stops_the_campaign_and_every_child(tmp_path):
