@@ -33,7 +33,18 @@ PLAN = "theta_i,phi_i,theta_o,phi_o\n" + "".join(
 
 
 def _cmd(args: list[str], out: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-c", _MAIN, "campaign", *args, "--out", str(out), "--quiet", *extra]
+    return [
+        sys.executable,
+        "-P",
+        "-c",
+        _MAIN,
+        "campaign",
+        *args,
+        "--out",
+        str(out),
+        "--quiet",
+        *extra,
+    ]
 
 
 def _done_groups(out: Path) -> int:

@@ -139,7 +139,7 @@ _CHILD = textwrap.dedent(
 
 
 def _reduce_in_guarded_process(out) -> dict:
-    p = subprocess.run([sys.executable, "-c", _CHILD, str(out), json.dumps(FORBIDDEN)],
+    p = subprocess.run([sys.executable, "-P", "-c", _CHILD, str(out), json.dumps(FORBIDDEN)],
                        capture_output=True, text=True, timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
     return json.loads(p.stdout.strip().splitlines()[-1])

@@ -531,7 +531,7 @@ def test_a_spec_imports_no_module_it_names(tmp_path):
     spec = tmp_path / "s.toml"
     spec.write_text('task = "this:s"\nmaterials = ["rolled_brass"]\nseeds = 1\n')
     code = "import sys; from gonio.cli import main; sys.exit(main(sys.argv[1:]))"
-    p = subprocess.run([sys.executable, "-c", code, "sweep", str(spec), "--dry-run"],
+    p = subprocess.run([sys.executable, "-P", "-c", code, "sweep", str(spec), "--dry-run"],
                        capture_output=True, text=True, timeout=120)  # fmt: skip
     assert p.returncode == 2 and "unknown task 'this:s'" in p.stderr
     assert "Beautiful is better than ugly" not in p.stdout  # `import this` prints the Zen

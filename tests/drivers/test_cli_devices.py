@@ -23,7 +23,7 @@ def _served(tmp_path, *extra: str):
     # stderr to a file: an unread pipe fills up (warnings, logs) and blocks the server
     err = open(tmp_path / "serve.stderr", "w+")
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from gonio.cli import main; sys.exit(main())",
+        [sys.executable, "-P", "-c", "import sys; from gonio.cli import main; sys.exit(main())",
          "devices", "serve", "--json", *extra],
         stdout=subprocess.PIPE,
         stderr=err,

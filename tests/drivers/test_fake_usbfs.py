@@ -55,7 +55,7 @@ def rig():
 def _child(bus, tmp_path, code: str, timeout: float = 60.0, header: bool = True):
     """Run Python ``code`` (after :data:`HEADER`) on the bus; the JSON object it prints last."""
     r = bus.run(
-        [sys.executable, "-c", (HEADER if header else "") + textwrap.dedent(code)],
+        [sys.executable, "-P", "-c", (HEADER if header else "") + textwrap.dedent(code)],
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -358,7 +358,7 @@ def test_a_program_killed_while_waiting_leaves_no_claim_behind(rig, tmp_path):
     """Ctrl-C on a program blocked in a reap: its interface claim must not outlive it."""
     bus = rig[0]
     waiter = subprocess.Popen(
-        [sys.executable, "-c", HEADER + WAIT_FOR_EVENT.format(timeout=20000)],
+        [sys.executable, "-P", "-c", HEADER + WAIT_FOR_EVENT.format(timeout=20000)],
         env=bus.env(),
         stdout=subprocess.PIPE,
         text=True,
@@ -403,11 +403,11 @@ def test_devices_serve_libusb_runs_a_program_that_sees_unplug_and_replug(tmp_pat
         """
     )
     r = subprocess.run(
-        [sys.executable, "-c", "import sys; from gonio.cli import main; sys.exit(main())",
+        [sys.executable, "-P", "-c", "import sys; from gonio.cli import main; sys.exit(main())",
          "devices", "serve", "--libusb", "--time-scale", "100", "--json",
          "--fault", "usb2000plus.disconnect_after_bytes=1000",
          "--fault", "usb2000plus.reconnect_after=0.2",
-         "--", sys.executable, "-c", child],
+         "--", sys.executable, "-P", "-c", child],
         capture_output=True, text=True, timeout=120, cwd=tmp_path,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
