@@ -33,6 +33,7 @@ import math
 from collections.abc import Mapping
 
 from gonio.simulator.effects import Distribution, EffectSpec, effect_rng, is_ideal
+from gonio.simulator.effects import check_magnitudes as _check_table
 
 __all__ = [
     "EFFECTS",
@@ -242,25 +243,7 @@ DEFAULT_PRESET = "cornell2005"
 def check_magnitudes(m: Mapping[str, float]) -> None:
     """``ValueError`` for an unknown effect, a magnitude outside its range, or a field of
     view larger than the sample (the message names the parameter, the value and the range)."""
-    if not isinstance(m, Mapping):
-        raise ValueError(f"effects must be a mapping of effect name to magnitude, got {m!r}")
-    for name, value in m.items():
-        spec = EFFECTS.get(name)
-        if spec is None:
-            raise ValueError(
-                f"effect {name!r} is unknown; expected some of {', '.join(sorted(EFFECTS))}"
-            )
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"effect {name} must be a number ({spec.unit}), got {value!r}"
-            ) from None
-        if not spec.contains(v):
-            raise ValueError(
-                f"effect {name} = {value!r} is outside its valid range {spec.range_text()} "
-                f"({spec.unit})"
-            )
+    _check_table(m, EFFECTS)
     fov, size = float(m.get("fov_diameter_mm", 0.0)), float(m.get("sample_size_mm", 0.0))
     if fov > 0 and size > 0 and fov > size:
         raise ValueError(

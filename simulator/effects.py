@@ -423,18 +423,21 @@ PRESET_OPTIONS: dict[str, dict[str, Any]] = {
 }
 
 
-def check_magnitudes(m: Mapping[str, float]) -> None:
+def check_magnitudes(m: Mapping[str, float], table: Mapping[str, EffectSpec] | None = None) -> None:
     """Raise ``ValueError`` for an unknown effect or a magnitude outside its valid range.
 
-    The message names the parameter, the value and the range (and the unit).
+    The message names the parameter, the value and the range (and the unit). ``table``: the
+    instrument's effects (default this module's LBL :data:`EFFECTS`; the Cornell instrument
+    passes its own).
     """
+    known = EFFECTS if table is None else table
     if not isinstance(m, Mapping):
         raise ValueError(f"effects must be a mapping of effect name to magnitude, got {m!r}")
     for name, value in m.items():
-        spec = EFFECTS.get(name)
+        spec = known.get(name)
         if spec is None:
             raise ValueError(
-                f"effect {name!r} is unknown; expected some of {', '.join(sorted(EFFECTS))}"
+                f"effect {name!r} is unknown; expected some of {', '.join(sorted(known))}"
             )
         try:
             v = float(value)
