@@ -9,7 +9,11 @@ on the number of workers or on a resume.
 
 Ward's protocol (Ward 1992, §4-5): 21 incidence angles from 0° to 80°; an anisotropic sample
 is also measured after rotating it by 90° about its normal so that both principal directions
-lie in the plane of incidence once (``rotations_deg=(0, 90)``).
+lie in the plane of incidence once. gonio's default for an anisotropic sample adds a third
+rotation between them (``rotations_deg=(0, 45, 90)``): Radiance's ``pabopto2bsdf`` infers a
+BSDF's symmetry from incident azimuths strictly inside a quadrant, so 0° and 90° alone cannot be
+exported as a Radiance BSDF (:mod:`gonio.io.pabopto`), and 45° also samples the lobe between the
+principal directions.
 
 References
 ----------
@@ -66,9 +70,12 @@ class Plan:
         Incidence angles in degrees.
     rotations_deg : sequence of float, optional
         Sample rotations about the normal (the incidence azimuth φi in the sample frame);
-        default ``(0, 90)`` for an anisotropic truth (α_x ≠ α_y) or a fitted model whose
+        default ``(0, 45, 90)`` for an anisotropic truth (α_x ≠ α_y) or a fitted model whose
         x and y coefficients only a second rotation separates (Lafortune's C_x, C_y),
-        ``(0,)`` otherwise.
+        ``(0,)`` otherwise. 0° and 90° put both principal directions in the plane of
+        incidence (Ward 1992, §4); 45° lies inside the quadrant, which Radiance's
+        ``pabopto2bsdf`` needs to infer the quadrilateral symmetry of such a sample
+        (:func:`gonio.io.pabopto.pabopto_symmetry`).
     exposures_s : sequence of float, optional
         Fixed exposure bracket; default the instrument's automatic bracket.
     noise : float
@@ -179,7 +186,7 @@ class Plan:
             # a Lafortune lobe's C_y multiplies y_i·y_o, which is 0 whenever φi = 0 in the
             # sample frame: without a second rotation C_y is not measured at all
             xy = any(c.strip() in _XY_MODELS for c in model.split("+"))
-            rot = (0.0, 90.0) if aniso or xy else (0.0,)
+            rot = (0.0, 45.0, 90.0) if aniso or xy else (0.0,)
         rot = tuple(float(r) for r in rot)
         if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
             raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")

@@ -50,7 +50,7 @@ def add_arguments(parser) -> None:
         "--rotations",
         default=None,
         metavar="DEG",
-        help="sample rotations 'a,b' (default 0,90 for anisotropic materials, else 0)",
+        help="sample rotations 'a,b,...' (default 0,45,90 for anisotropic materials, else 0)",
     )
     parser.add_argument(
         "--compare",

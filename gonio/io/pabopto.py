@@ -36,13 +36,14 @@ azimuth for every incidence means isotropic; azimuths inside one quadrant mean
 quadrilateral symmetry (the sample mirror-symmetric about x and y, as rolled or brushed
 metal, whose Ward α_x, α_y axes are x and y); two adjacent quadrants bilateral (or "up",
 which must be asked for); all four anisotropic. Several azimuths that all lie on quadrant
-boundaries — the LBL campaign's default rotations 0° and 90° of an anisotropic sample — form
+boundaries — rotations 0° and 90° of an anisotropic sample, Ward's protocol — form
 no valid symmetry: pabopto2bsdf builds a broken interpolant ("41 incident directions but
 only 1 interpolant") that bsdf2ttree cannot use. :func:`pabopto_symmetry` reproduces the
 rule and :func:`write_pabopto` refuses such a set before writing anything, naming the
 rotation to add: for the mirror-symmetric sample a researcher means by measuring 0° and 90°,
 one azimuth strictly inside the quadrant (45°) gives quadrilateral symmetry, which is what
-they would expect; gonio does not invent data at an azimuth it did not measure.
+they would expect; gonio does not invent data at an azimuth it did not measure. The LBL
+campaign's default rotations for an anisotropic sample are therefore 0°, 45° and 90°.
 
 References
 ----------

@@ -164,7 +164,7 @@ def test_default_plan_is_wards_protocol():
     p = campaign.default_plan()
     assert p.material == "rolled_brass" and p.model == "ward" and p.mirror == "ellipsoid"
     assert len(p.theta_i_deg) == 21 and p.theta_i_deg[0] == 0 and p.theta_i_deg[-1] == 80
-    assert p.rotations_deg == (0.0, 90.0)  # anisotropic
+    assert p.rotations_deg == (0.0, 45.0, 90.0)  # anisotropic, exportable to Radiance
     assert campaign.default_plan(material="white_ceramic_tile").rotations_deg == (0.0,)
     d = p.to_dict()
     assert campaign.Plan.from_dict(json.loads(json.dumps(d))) == p
