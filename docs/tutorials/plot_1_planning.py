@@ -120,12 +120,14 @@ fig.tight_layout(pad=0)
 # The truth comparison
 # --------------------
 # Only a simulation knows the truth, and the summary is the one place where it meets the
-# result: ``truth`` is the preset, ``fit`` what the laboratory got from its captures. The
-# check that matters for planning is whether each parameter's actual error lies within the
-# uncertainty the laboratory would quote. Against the statistical standard error alone
-# (``within_3_sigma``) a realistic instrument usually fails: more pixels shrink the noise,
-# but not the instrument's systematic errors. Against the budget's expanded uncertainty
-# (``within_expanded``: ``|fit − truth| ≤ U``) it should pass, about 95 times in 100.
+# result: ``truth`` is the preset, ``fit`` what the laboratory got from its captures (the
+# report's ``pull`` column is ``(fit − truth) / s.e.``). The check that matters for planning
+# is whether each parameter's actual error lies within the uncertainty the laboratory would
+# quote. Against the statistical standard error alone (``within_3_sigma``) it need not hold
+# on a realistic instrument: more pixels shrink the noise, but not the instrument's
+# systematic errors. Against the budget's expanded uncertainty (``within_expanded``:
+# ``|fit − truth| ≤ U``) it should hold about 95 times in 100. The counts printed last are
+# this campaign's.
 print("param    |fit-truth|  3 × s.e.   U (k=2)    within 3 s.e.  within U")
 for p in s["fit"]:
     err = abs(s["fit"][p] - s["truth"][p])
@@ -141,10 +143,10 @@ print(
 
 # %%
 # This comparison is one instrument and one noise draw. Re-running with ``seed=1`` measures
-# with *another* physical instrument (``instrument_seed`` defaults to the seed), so its errors
-# differ by about the budget's ``u_c``, not only by the statistical error; to repeat a
-# measurement on the same instrument, fix ``instrument_seed`` and vary ``seed``. Judging a
-# plan on many instruments is what ``gonio sweep`` over seeds is for.
+# with *another* physical instrument (``instrument_seed`` defaults to the seed), so its
+# errors differ by amounts the budget's ``u_c`` describes, not only by the statistical
+# error; to repeat a measurement on the same instrument, fix ``instrument_seed`` and vary
+# ``seed``. Judging a plan on many instruments is what ``gonio sweep`` over seeds is for.
 
 # %%
 # Two plans, compared with a sweep
@@ -224,19 +226,22 @@ for k, (label, (summ, est)) in enumerate(costs.items()):
     xs = x + 0.38 * (k - 0.5)
     ax1.bar(xs, rel_u, 0.38, label=f"plan {label}: {len(plans[label])} angles")
     ax1.plot(xs, rel_stat, "k_", ms=14, mew=2, label="statistical part (k = 2)" if k else None)
-    parts = ("move_s", "exposure_s", "stop_change_s", "manual_s")
+    parts = {"move_s": "arm moves", "exposure_s": "exposures", "stop_change_s": "iris changes",
+             "manual_s": "by hand"}  # fmt: skip
     bottom = 0.0
-    for j, part in enumerate(parts):
+    for j, (part, name) in enumerate(parts.items()):
         ax2.bar(k, est[part] / 60, 0.6, bottom=bottom, color=f"C{j + 2}",
-                label=part[:-2].replace("_", " ") if k == 0 else None)  # fmt: skip
+                label=name if k == 0 else None)  # fmt: skip
         bottom += est[part] / 60
 ax1.set_xticks(x, params)
 ax1.set_yscale("log")
 ax1.set(ylabel="expanded uncertainty U / value (%)", title="uncertainty (k = 2)")
 ax1.legend(fontsize=8)
-ax2.set_xticks(range(len(costs)), [f"plan {lab}" for lab in costs])
-ax2.set(ylabel="estimated time on the instrument (min)", title="time (modern build)")
-ax2.legend(fontsize=8)
+ax2.set_xticks(range(len(costs)), [f"plan {lab}\n{len(plans[lab])} angles" for lab in costs])
+top = max(est["total_s"] for _, est in costs.values()) / 60
+ax2.set(ylim=(0, 1.5 * top), ylabel="estimated time on the instrument (min)",
+        title="time (modern build)")  # fmt: skip
+ax2.legend(fontsize=8, ncol=2, loc="upper center")
 fig.suptitle("rolled brass, Ward fit, modern instrument: two plans")
 fig.tight_layout()
 
