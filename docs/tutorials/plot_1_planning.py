@@ -152,7 +152,8 @@ print(
 # Two plans, compared with a sweep
 # --------------------------------
 # Plan A measures three incidence angles, plan B five; both measure the anisotropic brass at
-# two rotations, so that both principal directions lie in the plane of incidence once. A
+# two rotations, 0° and 90°, so that both principal directions lie in the plane of incidence
+# once (the default rotations, printed for the first campaign above, may add more). A
 # sweep (:mod:`gonio.campaign.sweep`, the Python side of ``gonio sweep``) runs one campaign
 # per grid point, each into its own folder ``tasks/<id>``, and gathers a results table.
 plans = {"A": [10, 40, 70], "B": [10, 25, 40, 55, 70]}
