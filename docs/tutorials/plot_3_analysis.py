@@ -39,7 +39,7 @@ from gonio.simulator import LBLInstrument
 
 from gonio import campaign, fit, materials
 from gonio.campaign.folder import group_key, load_group
-from gonio.campaign.knowledge import SIDECAR_FIELDS, reduce_incidence
+from gonio.campaign.knowledge import laboratory_view, reduce_incidence
 from gonio.campaign.plan import capture_seed
 from gonio.cli import main as gonio_main
 from gonio.io import radiance
@@ -162,8 +162,10 @@ print(sorted(p.name for p in (out / "raw").iterdir()))
 # The laboratory's knowledge is the calibration folder — the lens fitted to ChArUco views,
 # the dome geometry fitted to mirror spots, the f-stop ladder, the standard's certificate and
 # the maker's specification of the build — and, of each side-car, only the fields a real
-# instrument writes (:data:`gonio.campaign.knowledge.SIDECAR_FIELDS`); the rest of a
-# simulated side-car describes the true instrument and is never passed to the reduction.
+# instrument writes (:func:`~gonio.campaign.knowledge.laboratory_view` keeps
+# :data:`~gonio.campaign.knowledge.SIDECAR_FIELDS` and, of the camera's record, its read-out
+# parameters); the rest of a simulated side-car describes the true instrument (its BRDF, its
+# lens, its sensor's fixed patterns) and is never passed to the reduction.
 lab = read_calibration(out / "calibration")
 print(f"lens: fitted to {lab.lens['n_views']} ChArUco views, rms {lab.lens['rms_px']:.3f} px")
 m = lab.mirror
@@ -186,9 +188,13 @@ def group(out: Path, theta_deg: float, rot_deg: float | None = None) -> dict:
     return load_group(path, json.loads((path / "done.json").read_text())["made_by"])
 
 
-_, meta = group(out, 50.0, 0.0)["measured"][0]
-print("side-car fields the reduction reads:", sorted(set(meta) & SIDECAR_FIELDS))
-print("fields it never reads:", sorted(set(meta) - SIDECAR_FIELDS))
+frame = group(out, 50.0, 0.0)["measured"][0]
+((_, kept),) = laboratory_view([frame])  # what the reduction is given
+meta = frame[1]
+print("side-car fields the reduction is given:", sorted(kept))
+print("  of the sensor record:", sorted(kept["sensor"]))
+print("never given:", sorted(set(meta) - set(kept)))
+print("  of the sensor record:", sorted(set(meta["sensor"]) - set(kept["sensor"])))
 
 
 # %%
@@ -209,7 +215,7 @@ def reduce_folder(out: Path, corrections) -> fit.FitResult:
         seeds = {r: capture_seed(plan.seed, group_key(th, r) + "/select") for r in measured}
         reduced = reduce_incidence(
             ref["standard"], ref["background"], measured, lab, corrections=corrections,
-            seeds=seeds, debias=plan.debias, select=dict(plan.thinning),
+            seeds=seeds, debias=plan.debias and plan.noise > 0, select=dict(plan.thinning),
         )  # fmt: skip
         tables += [table for table, _ in reduced]
     return fit.fit(BRDFSamples.concatenate(tables), plan.model)
