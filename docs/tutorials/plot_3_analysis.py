@@ -169,7 +169,7 @@ print(sorted(p.name for p in (out / "raw").iterdir()))
 lab = read_calibration(out / "calibration")
 print(f"lens: fitted to {lab.lens['n_views']} ChArUco views, rms {lab.lens['rms_px']:.3f} px")
 m = lab.mirror
-print(f"dome: {dict(zip(m.names, m.values.round(6)))} from {m.n_points} mirror spots,"
+print(f"dome: {dict(zip(m.names, m.values.round(6).tolist()))} from {m.n_points} mirror spots,"
       f" rms {m.rms_deg:.3f}°")  # fmt: skip
 f = lab.fstops
 print(f"f-stops: {len(f.log_gain)} stops from {f.n_overlaps} overlaps, iris repeatability"
@@ -280,7 +280,8 @@ for k, (label, r) in enumerate(ablated.items()):
 ax.plot(xs, [100 * bud["expanded"][q] / abs(bud["params"][q]) for q in names], "k_", ms=20,
         mew=2, label="U (k = 2), all corrections")  # fmt: skip
 ax.set_xticks(xs, names)
-ax.set(yscale="log", ylabel="relative to the truth (%)", title="modern instrument, 2 angles")
+ax.set(yscale="log", ylabel="relative to the truth (%)",
+       title="modern instrument, 2 angles × 2 rotations")  # fmt: skip
 ax.legend(fontsize=8)
 if have_radiance:
     ax = axes[0, 1]
