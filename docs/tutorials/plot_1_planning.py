@@ -58,7 +58,7 @@ for name in shown:
 # A first campaign
 # ----------------
 # A :class:`~gonio.campaign.plan.Plan` says what is measured and how; every field has a
-# default (Ward's protocol: 21 incidence angles from 0° to 80°, the sample measured at more
+# default (Ward's protocol of incidence angles, printed below; the sample measured at more
 # than one rotation when it is anisotropic; the ``"modern"`` instrument; seed 0). Three
 # angles are enough to see what a campaign reports. ``workers=1`` keeps the run in this
 # process; the results folder goes to a temporary directory. The campaign first calibrates
@@ -67,6 +67,10 @@ for name in shown:
 # sample, the diffuse standard and the background at every angle, reduces them with that
 # calibration and the standard's certificate only, fits the preset's model and builds the
 # uncertainty budget. The printed report holds the fit against the truth, then the budget.
+default = campaign.default_plan().resolved()
+print(f"default: {len(default.theta_i_deg)} angles from {min(default.theta_i_deg):g}°"
+      f" to {max(default.theta_i_deg):g}°, rotations {default.rotations_deg},"
+      f" preset {default.preset!r}, seed {default.seed}")  # fmt: skip
 work = Path(tempfile.mkdtemp(prefix="gonio-plan-"))
 plan = campaign.Plan(material="rolled_brass", theta_i_deg=(10, 40, 70))
 res = campaign.run(plan, work / "first", workers=1)

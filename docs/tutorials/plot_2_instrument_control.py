@@ -35,7 +35,7 @@ from gonio.drivers.fake import usb as fakeusb
 from gonio.drivers.fake.esp300 import FakeESP300Server
 from gonio.drivers.ptp import PTPCamera
 from gonio.drivers.usb2000 import USB2000Plus
-from gonio.simulator.bench import Bench
+from gonio.simulator.bench import Bench, default_spectrum_render
 
 bench = Bench.for_instrument("lbl", "rolled_brass", time_scale=200.0, rng=0)
 server = FakeESP300Server(bench).start()
@@ -102,10 +102,14 @@ for r in records:
 # %%
 # The figure shows what the scan read: the spectra, the camera frame at 40° (the LBL
 # simulator's view of the sample through the dome) and the spectrum's total against the arm
-# angle beside cos θ. On the LBL bench the spectrometer is a simple stand-in — a 3000 K lamp
-# reflected by a grey Lambertian sample, with a constant dark offset of 1500 counts per
-# pixel (:func:`~gonio.simulator.bench.default_spectrum_render`) — so its total follows cos θ
-# above that offset; the Cornell bench's spectrometer is the Cornell instrument simulator.
+# angle beside cos θ. On the LBL bench the spectrometer is a simple stand-in — a
+# tungsten-halogen lamp's Planck spectrum reflected by a grey Lambertian sample, plus a
+# constant dark offset (:func:`~gonio.simulator.bench.default_spectrum_render`) — so its
+# total above the dark offset follows cos θ; the dark spectrum is the stand-in's reading with
+# the source at grazing incidence. The Cornell bench's spectrometer is the Cornell
+# instrument simulator.
+dark = default_spectrum_render({"source": 90.0}, spec.integration_time, wavelengths)
+print(f"dark offset: {dark.mean():.0f} counts per pixel")
 fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
 for r in records:
     axes[0].plot(wavelengths, r["counts"], lw=0.8, label=f"{r['angle']:.0f}°")
@@ -116,9 +120,9 @@ axes[1].set_title("PTP camera frame, arm at 40°")
 axes[1].axis("off")
 fig.colorbar(im, ax=axes[1], label="log10 DN", shrink=0.8)
 angles = np.array([r["angle"] for r in records])
-totals = np.array([r["counts"].sum() for r in records])
+totals = np.array([(r["counts"] - dark).sum() for r in records])
 fine = np.linspace(0.0, 60.0, 61)
-axes[2].plot(angles, totals / totals[0], "o", label="spectrum total / total at 0°")
+axes[2].plot(angles, totals / totals[0], "o", label="(spectrum − dark) total / at 0°")
 axes[2].plot(fine, np.cos(np.radians(fine)), "k:", label="cos θ")
 axes[2].set(xlabel="source arm (deg)", ylabel="relative signal", title="signal against angle")
 axes[2].legend(fontsize=8)

@@ -21,8 +21,8 @@ shows what each of the laboratory's corrections is worth, and exports the fit to
 # Render raw images with their side-cars
 # --------------------------------------
 # :class:`~gonio.simulator.lbl.LBLInstrument` is the simulated instrument (ellipsoidal dome of
-# radius 0.15 m, source-sample half-separation 0.01 m, equidistant fisheye). A smaller sensor
-# than the default 640 × 480 keeps this tutorial quick. ``bracket`` chooses the f-stops that
+# radius 0.15 m, source-sample half-separation 0.01 m, equidistant fisheye). A sensor
+# smaller than the default keeps this tutorial quick. ``bracket`` chooses the f-stops that
 # cover the dynamic range of the scene and returns one ``(image, metadata)`` pair per stop;
 # :func:`gonio.io.images.write_image` writes the 16-bit image and its side-car
 # (``image.png.json``) atomically.
