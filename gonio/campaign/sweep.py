@@ -224,15 +224,8 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 MAX_TASKS = 100_000
 
 
-def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
-    """Validate a decoded spec (a dict as read from JSON or TOML) into a :class:`SweepSpec`.
-
-    Every problem raises :class:`ValueError` naming the file, the key, the bad value and what
-    was expected.
-    """
-    where = f"sweep spec {source}"
-    if not isinstance(data, dict):
-        raise ValueError(f"{where}: expected a table/object at the top level, got {data!r}")
+def _spec_task(data: dict[str, Any], where: str) -> str:
+    """The spec's keys checked (none unknown, the required present) and its registered task."""
     unknown = sorted(set(data) - set(_SPEC_KEYS))
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}; expected keys are {list(_SPEC_KEYS)}")
@@ -246,8 +239,11 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
         get_task(task)  # registered only
     except ValueError as exc:
         raise ValueError(f"{where}: {exc}") from None
+    return task
 
-    mats = data["materials"]
+
+def _spec_materials(mats: Any, where: str) -> list[str]:
+    """The ``materials`` axis: a name or a non-empty list of distinct names."""
     if isinstance(mats, str):
         mats = [mats]
     if not isinstance(mats, list) or not mats:
@@ -257,8 +253,11 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
             raise ValueError(f"{where}: 'materials' entries must be non-empty strings, got {m!r}")
     if len(set(mats)) != len(mats):
         raise ValueError(f"{where}: 'materials' lists a material twice: {mats!r}")
+    return mats
 
-    seeds = data["seeds"]
+
+def _spec_seeds(seeds: Any, where: str) -> list[int]:
+    """The ``seeds`` axis: a count (``range(count)``) or a list of distinct integers >= 0."""
     if isinstance(seeds, int) and not isinstance(seeds, bool):
         if not 1 <= seeds <= MAX_TASKS:
             raise ValueError(
@@ -274,8 +273,11 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
             raise ValueError(f"{where}: 'seeds' entries must be integers >= 0, got {s!r}")
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"{where}: 'seeds' lists a seed twice: {seeds!r}")
+    return seeds
 
-    settings_in = data.get("settings", {})
+
+def _spec_settings(settings_in: Any, where: str) -> dict[str, tuple[Any, ...]]:
+    """The ``[settings]`` grid axes: each a non-empty list of distinct JSON-able values."""
     if not isinstance(settings_in, dict):
         raise ValueError(f"{where}: 'settings' must be a table of lists, got {settings_in!r}")
     settings: dict[str, tuple[Any, ...]] = {}
@@ -293,6 +295,38 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
         if len({json.dumps(x, sort_keys=True) for x in vals}) != len(vals):
             raise ValueError(f"{where}: settings.{k} lists a value twice: {v!r}")
         settings[k] = vals
+    return settings
+
+
+def _spec_name(data: dict[str, Any], where: str) -> str:
+    """The string keys (``name``, ``description``, ``plot``) checked; the sweep's name."""
+    for key in ("name", "description", "plot"):
+        if key in data and not isinstance(data[key], str):
+            raise ValueError(f"{where}: {key!r} must be a string, got {data[key]!r}")
+    name = data.get("name", "sweep")
+    if not _NAME.fullmatch(name):
+        raise ValueError(
+            f"{where}: 'name' {name!r} must be a plain folder name (letters, digits, '_', '-' "
+            "and '.', at most 64, starting with a letter or digit); it names sweep_<name>"
+        )
+    return name
+
+
+def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
+    """Validate a decoded spec (a dict as read from JSON or TOML) into a :class:`SweepSpec`.
+
+    Every problem raises :class:`ValueError` naming the file, the key, the bad value and what
+    was expected. The checks run in the order the keys are described in :func:`load_spec`:
+    keys and task, materials, seeds, settings, fixed values, the grid's size, the names, and
+    last the task's own validator on every grid point.
+    """
+    where = f"sweep spec {source}"
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a table/object at the top level, got {data!r}")
+    task = _spec_task(data, where)
+    mats = _spec_materials(data["materials"], where)
+    seeds = _spec_seeds(data["seeds"], where)
+    settings = _spec_settings(data.get("settings", {}), where)
     fixed = data.get("fixed", {})
     if not isinstance(fixed, dict):
         raise ValueError(f"{where}: 'fixed' must be a table, got {fixed!r}")
@@ -306,22 +340,13 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
     clash = sorted(set(fixed) & set(settings))
     if clash:
         raise ValueError(f"{where}: key(s) {clash} appear in both [settings] and [fixed]")
-    for key in ("name", "description", "plot"):
-        if key in data and not isinstance(data[key], str):
-            raise ValueError(f"{where}: {key!r} must be a string, got {data[key]!r}")
-    name = data.get("name", "sweep")
-    if not _NAME.fullmatch(name):
-        raise ValueError(
-            f"{where}: 'name' {name!r} must be a plain folder name (letters, digits, '_', '-' "
-            "and '.', at most 64, starting with a letter or digit); it names sweep_<name>"
-        )
     spec = SweepSpec(
         task=task,
         materials=tuple(mats),
         seeds=tuple(seeds),
         settings=settings,
         fixed=fixed,
-        name=name,
+        name=_spec_name(data, where),
         description=data.get("description", ""),
         plot=data.get("plot", ""),
         source=source,
@@ -859,47 +884,22 @@ def run_sweep(
     """
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
-    if executor not in EXECUTORS:
-        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
-    if executor != "dask" and (scheduler or dask_local or client is not None):
-        raise ValueError(f"scheduler/dask_local/client need executor='dask', got {executor!r}")
-    if retries < 0:
-        raise ValueError(f"retries must be >= 0, got {retries!r}")
-    if not (isinstance(no_workers_timeout, int | float) and no_workers_timeout > 0):
-        raise ValueError(f"no_workers_timeout must be > 0 seconds, got {no_workers_timeout!r}")
+    _check_run_options(executor, scheduler, dask_local, client, retries, no_workers_timeout)
     root = Path(root).resolve()  # workers elsewhere resolve relative paths differently
     root.mkdir(parents=True, exist_ok=True)
     tasks = expand(spec)
     progress = progress or (lambda _res: None)
     t0 = time.perf_counter()
     startup = 0.0
-    results: dict[str, dict] = {}
     w = 1
     if executor == "process":
         w = int(workers or os.cpu_count() or 1)
         if w < 1:
             raise ValueError(f"workers must be >= 1, got {workers!r}")
-    # tasks finished by an earlier run are read here and never submitted: a re-run costs no
-    # executor round trips, and "skipped" means exactly "finished before this sweep started"
-    todo = []
-    for t in tasks:
-        tid = task_id(t)
-        done = read_summary(Path(root) / "tasks" / tid, t)
-        if done is None:
-            todo.append(t)
-        else:
-            results[tid] = {**done, "skipped": True}
-            progress(results[tid])
+    results, todo = _finished_before(tasks, root, progress)
     stack = contextlib.ExitStack()
     if executor == "dask" and client is None and todo:
-        if scheduler:
-            try:
-                from distributed import Client
-            except ImportError:
-                raise _no_dask() from None
-            client = stack.enter_context(Client(scheduler, timeout="60s"))
-        else:
-            client = stack.enter_context(dask_local_cluster(int(dask_local or 2)))
+        client = _open_dask_client(stack, scheduler, dask_local)
         startup = time.perf_counter() - t0
 
     def execute(batch: list[dict]) -> Iterator[dict]:
@@ -909,43 +909,11 @@ def run_sweep(
             return _run_process(batch, str(root), fn, w, retries, progress)
         return _run_dask(batch, str(root), fn, client, progress, no_workers_timeout)
 
-    def collect(batch: list[dict]) -> None:
-        for r in execute(batch):
-            if r.get("skipped"):
-                # finished during this sweep: Dask recomputed a result lost with its worker,
-                # or two workers raced; the folder's record is the one run that counts
-                r = {**r, "skipped": False}
-            results[r["task_id"]] = r
-
     with stack:
-        if todo:
-            collect(todo)
-        # a task that raised (or whose worker was lost too often) is run again; finished
-        # tasks are never repeated (run_task skips them)
-        for _ in range(retries):
-            again = [t for t in todo if "error" in results.get(task_id(t), {"error": ""})]
-            if not again:
-                break
-            collect(again)
+        _run_with_retries(execute, todo, results, retries)
     wall = time.perf_counter() - t0
 
-    rows, timings, failures = [], [], {}
-    for t in tasks:
-        tid = task_id(t)
-        r = results.get(tid) or {"error": "no result returned"}
-        if "error" in r:
-            failures[tid] = r["error"]
-            continue
-        rows.append(_row(t, tid, r["metrics"]))
-        timings.append(
-            {
-                "task_id": tid,
-                "wall_s": r["wall_s"],
-                "skipped": bool(r.get("skipped")),
-                "host": r.get("host", ""),
-                "pid": r.get("pid", 0),
-            }
-        )
+    rows, timings, failures = _gather(tasks, results)
     n_skipped = sum(t["skipped"] for t in timings)
     result = SweepResult(
         spec=spec,
@@ -964,6 +932,114 @@ def run_sweep(
     for leftover in (root / "tasks").glob(".*.tmp-*"):
         shutil.rmtree(leftover, ignore_errors=True)  # debris of killed workers
     return result
+
+
+def _check_run_options(
+    executor: str,
+    scheduler: str | None,
+    dask_local: int | None,
+    client: Any,
+    retries: int,
+    no_workers_timeout: float,
+) -> None:
+    """:func:`run_sweep`'s executor options checked before anything is written."""
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    if executor != "dask" and (scheduler or dask_local or client is not None):
+        raise ValueError(f"scheduler/dask_local/client need executor='dask', got {executor!r}")
+    if retries < 0:
+        raise ValueError(f"retries must be >= 0, got {retries!r}")
+    if not (isinstance(no_workers_timeout, int | float) and no_workers_timeout > 0):
+        raise ValueError(f"no_workers_timeout must be > 0 seconds, got {no_workers_timeout!r}")
+
+
+def _finished_before(
+    tasks: list[dict], root: Path, progress: Callable[[dict], None]
+) -> tuple[dict[str, dict], list[dict]]:
+    """The results of tasks an earlier run finished (reported to ``progress``), and the rest.
+
+    Finished tasks are read here and never submitted: a re-run costs no executor round
+    trips, and "skipped" means exactly "finished before this sweep started".
+    """
+    results: dict[str, dict] = {}
+    todo = []
+    for t in tasks:
+        tid = task_id(t)
+        done = read_summary(Path(root) / "tasks" / tid, t)
+        if done is None:
+            todo.append(t)
+        else:
+            results[tid] = {**done, "skipped": True}
+            progress(results[tid])
+    return results, todo
+
+
+def _open_dask_client(
+    stack: contextlib.ExitStack, scheduler: str | None, dask_local: int | None
+) -> Any:
+    """A ``distributed.Client`` on ``scheduler``, or on a local cluster, closed by ``stack``."""
+    if scheduler:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise _no_dask() from None
+        return stack.enter_context(Client(scheduler, timeout="60s"))
+    return stack.enter_context(dask_local_cluster(int(dask_local or 2)))
+
+
+def _run_with_retries(
+    execute: Callable[[list[dict]], Iterator[dict]],
+    todo: list[dict],
+    results: dict[str, dict],
+    retries: int,
+) -> None:
+    """Run ``todo`` through ``execute`` into ``results``, then re-run failed tasks ``retries``
+    times.
+
+    A task that raised (or whose worker was lost too often) is run again; finished tasks are
+    never repeated (run_task skips them).
+    """
+
+    def collect(batch: list[dict]) -> None:
+        for r in execute(batch):
+            if r.get("skipped"):
+                # finished during this sweep: Dask recomputed a result lost with its worker,
+                # or two workers raced; the folder's record is the one run that counts
+                r = {**r, "skipped": False}
+            results[r["task_id"]] = r
+
+    if todo:
+        collect(todo)
+    for _ in range(retries):
+        again = [t for t in todo if "error" in results.get(task_id(t), {"error": ""})]
+        if not again:
+            break
+        collect(again)
+
+
+def _gather(
+    tasks: list[dict], results: Mapping[str, dict]
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, str]]:
+    """The results table's rows, the timings and the failures (task id -> error), in grid
+    order."""
+    rows, timings, failures = [], [], {}
+    for t in tasks:
+        tid = task_id(t)
+        r = results.get(tid) or {"error": "no result returned"}
+        if "error" in r:
+            failures[tid] = r["error"]
+            continue
+        rows.append(_row(t, tid, r["metrics"]))
+        timings.append(
+            {
+                "task_id": tid,
+                "wall_s": r["wall_s"],
+                "skipped": bool(r.get("skipped")),
+                "host": r.get("host", ""),
+                "pid": r.get("pid", 0),
+            }
+        )
+    return rows, timings, failures
 
 
 def _row(task: Mapping[str, Any], tid: str, metrics: Mapping[str, Any]) -> dict[str, Any]:

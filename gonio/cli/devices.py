@@ -118,14 +118,37 @@ def _parse_faults(specs: list[str]) -> list[tuple[str, str, float]]:
 
 
 def _serve(args) -> int:
-    import signal
-    import threading
+    """Start the fakes on a bench, print how to reach them, serve until stopped (or the
+    program ends); every server, bus and thread started is stopped on the way out."""
+    from gonio.drivers.fake.usb import devices
 
-    from gonio.campaign.drivers import CONTROLLER_GROUPS, cornell_fake_bench
-    from gonio.drivers.fake.esp300 import FakeESP300Server
-    from gonio.drivers.fake.usb import devices, install, serve_remote
-    from gonio.simulator.bench import Bench
+    faults, command = _check_serve_args(args)
+    bench = _make_bench(args)
+    servers, records, name, remote = _start_servers(bench, args)
+    fakes = devices(name)
+    for dev, fault, number in faults:
+        setattr(fakes[dev].faults, fault, number)
+    bus = None
+    if args.libusb:
+        from gonio.drivers.fake.usbfs import UsbfsBus
 
+        try:
+            bus = UsbfsBus(fakes)
+        except BaseException:
+            for srv in servers:
+                srv.stop()
+            remote.close()
+            raise
+        records.append(bus.record(fakes))
+    records += _usb_and_bench_records(args, bench, fakes, name, remote.address)
+    return _serve_until_stopped(args, command, records, servers, remote, bus, name)
+
+
+def _check_serve_args(args) -> tuple[list[tuple[str, str, float]], list[str]]:
+    """``serve``'s options checked: the faults to arm and the program to run (may be empty).
+
+    With ``--libusb`` this re-executes the command under umockdev's preload library.
+    """
     if args.time_scale <= 0:
         raise ValueError(f"--time-scale={args.time_scale!r}: expected a number > 0")
     if args.seed < 0:
@@ -148,16 +171,35 @@ def _serve(args) -> int:
             ensure_preloaded()  # re-executes this command under umockdev's preload library
         except UsbfsUnavailable as exc:
             raise ValueError(f"--libusb: {exc}") from None
+    return faults, command
+
+
+def _make_bench(args):
+    """The simulated bench of ``--instrument`` with the sample, seed, noise and time scale."""
+    from gonio.campaign.drivers import cornell_fake_bench
+    from gonio.simulator.bench import Bench
+
     noise = args.noise == "on"
     if args.instrument == "cornell":
         bench, _inst = cornell_fake_bench(
             args.material, seed=args.seed, noise=noise, time_scale=args.time_scale
         )
-    else:
-        bench = Bench.for_instrument(
-            args.instrument, args.material, time_scale=args.time_scale, rng=args.seed,
-            noise=noise,
-        )  # fmt: skip
+        return bench
+    return Bench.for_instrument(
+        args.instrument, args.material, time_scale=args.time_scale, rng=args.seed, noise=noise
+    )
+
+
+def _start_servers(bench, args) -> tuple[list, list[dict], str, object]:
+    """One fake ESP300 server per controller of the bench and the fake USB bus served to
+    other processes: (servers, their records, the pyusb backend's name, the USB server).
+
+    If any of them fails to start, the servers already started are stopped.
+    """
+    from gonio.campaign.drivers import CONTROLLER_GROUPS
+    from gonio.drivers.fake.esp300 import FakeESP300Server
+    from gonio.drivers.fake.usb import install, serve_remote
+
     servers = []
     records = []
     try:
@@ -185,26 +227,16 @@ def _serve(args) -> int:
         for srv in servers:
             srv.stop()
         raise
-    fakes = devices(name)
-    for dev, fault, number in faults:
-        setattr(fakes[dev].faults, fault, number)
-    bus = None
-    if args.libusb:
-        from gonio.drivers.fake.usbfs import UsbfsBus
+    return servers, records, name, remote
 
-        try:
-            bus = UsbfsBus(fakes)
-        except BaseException:
-            for srv in servers:
-                srv.stop()
-            remote.close()
-            raise
-        records.append(bus.record(fakes))
-    records += [
+
+def _usb_and_bench_records(args, bench, fakes: dict, name: str, usb_server: str) -> list[dict]:
+    """The printed records of the USB2000+, the PTP camera and the bench."""
+    return [
         {
             "device": "usb2000plus",
             "backend": name,
-            "usb_server": remote.address,
+            "usb_server": usb_server,
             "vendor": "0x2457",
             "product": "0x101e",
             "serial": fakes["usb2000plus"].serial,
@@ -213,7 +245,7 @@ def _serve(args) -> int:
         {
             "device": "ptp",
             "backend": name,
-            "usb_server": remote.address,
+            "usb_server": usb_server,
             "vendor": f"0x{fakes['ptp'].vendor:04x}",
             "product": f"0x{fakes['ptp'].product:04x}",
             "serial": fakes["ptp"].serial,
@@ -223,11 +255,19 @@ def _serve(args) -> int:
             "instrument": args.instrument,
             "material": args.material,
             "seed": int(args.seed),
-            "noise": noise,
+            "noise": args.noise == "on",
             "time_scale": float(args.time_scale),
             "stages": list(bench.stages),
         },
     ]
+
+
+def _serve_until_stopped(args, command, records, servers, remote, bus, name: str) -> int:
+    """Print the records, then serve until SIGINT/SIGTERM (or run ``command`` on the libusb
+    bus and return its exit code); stop the bus, the servers and the USB server."""
+    import signal
+    import threading
+
     stop = threading.Event()
     # SIGINT (Ctrl-C) and SIGTERM both stop the server, through handlers installed before the
     # records are printed (a client may signal as soon as it has read them). SIGINT needs its
