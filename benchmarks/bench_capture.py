@@ -64,9 +64,6 @@ def _fresh(size, **kw):
 
 
 def bench_size(size, repeat, model, skips=True):
-    from gonio.simulator import LBLInstrument
-    from gonio.simulator.lbl import _GEOMETRY_CACHE
-
     out = {"size": f"{size[0]}x{size[1]}"}
     # one-time geometry
     geo = []
@@ -116,6 +113,19 @@ def bench_size(size, repeat, model, skips=True):
     out["skips"] = {}
     if not skips:
         return out
+    skips = _skip_timings(inst, size, model, repeat)
+    out["skips"] = {
+        k: {"with_ms": v[0][2], "without_ms": v[1][2], "unchanged": v[2]} for k, v in skips.items()
+    }  # fmt: skip  (CPU ms, medians)
+    return out
+
+
+def _skip_timings(inst, size, model, repeat):
+    """Each skip rule's capture time with and without it (timings of :func:`_time`) and
+    whether the image is unchanged."""
+    from gonio.simulator import LBLInstrument
+    from gonio.simulator.lbl import _GEOMETRY_CACHE
+
     skips = {}
     ref, _ = inst.capture(model, TH, noise=False)
 
@@ -186,10 +196,7 @@ def bench_size(size, repeat, model, skips=True):
         _time(lambda: inst.capture(model, TH, noise=False, source_samples=19), repeat // 3),
         f"max |dDN| = {int(np.abs(one.astype(int) - many).max())}",
     )
-    out["skips"] = {
-        k: {"with_ms": v[0][2], "without_ms": v[1][2], "unchanged": v[2]} for k, v in skips.items()
-    }  # fmt: skip  (CPU ms, medians)
-    return out
+    return skips
 
 
 def bench_bracket(model_fn):
@@ -420,6 +427,55 @@ def noise_tv_table():
     return rows
 
 
+def _print_size(r):
+    """The printed rows of one image size's :func:`bench_size` result."""
+    print(f"\n== {r['size']}  ({r['candidate_pixels']} of {r['pixels']} pixels see the sample)")
+    print(f"geometry trace (one-time, CPU) {r['geometry_ms']:9.1f} ms")
+    for k in ("capture_noise_off_ms", "capture_noise_on_ms", "render_noise_off_ms",
+              "copy_uint16_ms", "copy_float64_ms", "exp_lit_pixels_ms",
+              "normals_all_pixels_ms"):  # fmt: skip
+        med, mn, cpu = r[k]
+        print(f"{k[:-3]:<30} {med:9.3f} ms (median)  {mn:8.3f} ms (min)  {cpu:8.3f} ms (CPU)")
+    print(
+        "capture / copy (CPU medians):  noise off "
+        f"{r['ratio_noise_off_vs_copy_uint16']:.0f}x uint16, "
+        f"{r['ratio_noise_off_vs_copy_float64']:.1f}x float64;  noise on "
+        f"{r['ratio_noise_on_vs_copy_uint16']:.0f}x uint16, "
+        f"{r['ratio_noise_on_vs_copy_float64']:.1f}x float64  (issue 8 target: <= 3x)"
+    )
+    print(
+        "lower bounds / float64 copy: numpy exp over the lit pixels "
+        f"{r['ratio_exp_lit_pixels_vs_copy_float64']:.1f}x, one normal per pixel "
+        f"{r['ratio_normals_all_pixels_vs_copy_float64']:.1f}x"
+    )
+    if r["skips"]:
+        print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
+    for k, v in r["skips"].items():
+        print(f"{k:<46}{v['with_ms']:>8.2f}ms{v['without_ms']:>8.2f}ms  {v['unchanged']}")
+
+
+def _print_noise(nz):
+    """The printed rows of :func:`bench_noise`'s result."""
+    print(
+        f"\nnoise on a 640x480 rolled-brass frame (f/4), CPU ms: compiled {nz['fast_ms']:.2f}"
+        f" (normal from {nz['threshold_e']:g} e-), numpy exact Poisson {nz['exact_ms']:.2f}"
+    )
+    print(
+        f"  kernel alone (noise + ADC, no allocation) {nz['noise_u16_kernel_ms']:.2f};"
+        f" 307200 standard normals: xoshiro256++ ziggurat {nz['normals_xoshiro_ms']:.2f},"
+        f" numba Generator.standard_normal {nz['normals_numba_generator_ms']:.2f}"
+    )
+    print("moments of 1e6 draws, (value - model) / standard error; fast | exact")
+    for m in nz["moments"]:
+        dm = [(m[f"{k}_mean"] - m["lam"]) / m["se_mean"] for k in ("fast", "exact")]
+        dv = [(m[f"{k}_var"] - m["model_var"]) / m["se_var"] for k in ("fast", "exact")]
+        dg = [(m[f"{k}_skew"] - m["model_skew"]) / m["se_skew"] for k in ("fast", "exact")]
+        print(f"  sigma {m['read_noise']:3g} lam {m['lam']:7g}: mean {dm[0]:+5.1f} | {dm[1]:+5.1f}"
+              f"   var {dv[0]:+5.1f} | {dv[1]:+5.1f}   skew {dg[0]:+5.1f} | {dg[1]:+5.1f}"
+              f"   (skew model {m['model_skew']:.4f}, fast {m['fast_skew']:.4f},"
+              f" exact {m['exact_skew']:.4f})")  # fmt: skip
+
+
 def main(argv=None):
     from gonio import materials
 
@@ -433,29 +489,7 @@ def main(argv=None):
     for size in ((640, 480), (1024, 1024)):
         r = bench_size(size, args.repeat, model, skips=not args.quick)
         results.append(r)
-        print(f"\n== {r['size']}  ({r['candidate_pixels']} of {r['pixels']} pixels see the sample)")
-        print(f"geometry trace (one-time, CPU) {r['geometry_ms']:9.1f} ms")
-        for k in ("capture_noise_off_ms", "capture_noise_on_ms", "render_noise_off_ms",
-                  "copy_uint16_ms", "copy_float64_ms", "exp_lit_pixels_ms",
-                  "normals_all_pixels_ms"):  # fmt: skip
-            med, mn, cpu = r[k]
-            print(f"{k[:-3]:<30} {med:9.3f} ms (median)  {mn:8.3f} ms (min)  {cpu:8.3f} ms (CPU)")
-        print(
-            "capture / copy (CPU medians):  noise off "
-            f"{r['ratio_noise_off_vs_copy_uint16']:.0f}x uint16, "
-            f"{r['ratio_noise_off_vs_copy_float64']:.1f}x float64;  noise on "
-            f"{r['ratio_noise_on_vs_copy_uint16']:.0f}x uint16, "
-            f"{r['ratio_noise_on_vs_copy_float64']:.1f}x float64  (issue 8 target: <= 3x)"
-        )
-        print(
-            "lower bounds / float64 copy: numpy exp over the lit pixels "
-            f"{r['ratio_exp_lit_pixels_vs_copy_float64']:.1f}x, one normal per pixel "
-            f"{r['ratio_normals_all_pixels_vs_copy_float64']:.1f}x"
-        )
-        if r["skips"]:
-            print(f"{'skip (CPU ms, median)':<46}{'with':>10}{'without':>10}  image unchanged")
-        for k, v in r["skips"].items():
-            print(f"{k:<46}{v['with_ms']:>8.2f}ms{v['without_ms']:>8.2f}ms  {v['unchanged']}")
+        _print_size(r)
 
     def two_level(wi, wo):
         h = wi + wo
@@ -480,24 +514,7 @@ def main(argv=None):
               f"wall {c['wall_s_min']:.3f} s  CPU {c['cpu_s_min']:.3f} s  "
               f"({c['ms_per_frame_cpu']:.2f} ms/frame CPU, plan included)")  # fmt: skip
     nz = bench_noise(max(5, args.repeat // 3))
-    print(
-        f"\nnoise on a 640x480 rolled-brass frame (f/4), CPU ms: compiled {nz['fast_ms']:.2f}"
-        f" (normal from {nz['threshold_e']:g} e-), numpy exact Poisson {nz['exact_ms']:.2f}"
-    )
-    print(
-        f"  kernel alone (noise + ADC, no allocation) {nz['noise_u16_kernel_ms']:.2f};"
-        f" 307200 standard normals: xoshiro256++ ziggurat {nz['normals_xoshiro_ms']:.2f},"
-        f" numba Generator.standard_normal {nz['normals_numba_generator_ms']:.2f}"
-    )
-    print("moments of 1e6 draws, (value - model) / standard error; fast | exact")
-    for m in nz["moments"]:
-        dm = [(m[f"{k}_mean"] - m["lam"]) / m["se_mean"] for k in ("fast", "exact")]
-        dv = [(m[f"{k}_var"] - m["model_var"]) / m["se_var"] for k in ("fast", "exact")]
-        dg = [(m[f"{k}_skew"] - m["model_skew"]) / m["se_skew"] for k in ("fast", "exact")]
-        print(f"  sigma {m['read_noise']:3g} lam {m['lam']:7g}: mean {dm[0]:+5.1f} | {dm[1]:+5.1f}"
-              f"   var {dv[0]:+5.1f} | {dv[1]:+5.1f}   skew {dg[0]:+5.1f} | {dg[1]:+5.1f}"
-              f"   (skew model {m['model_skew']:.4f}, fast {m['fast_skew']:.4f},"
-              f" exact {m['exact_skew']:.4f})")  # fmt: skip
+    _print_noise(nz)
     fx = bench_sensor_effects(args.repeat)
     print("\nsensor effects, 640x480 rolled brass at f/2 (CPU ms, median; ratio to the ideal"
           " sensor in this run):")  # fmt: skip

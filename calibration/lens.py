@@ -348,24 +348,7 @@ def calibrate_fisheye(
     if not imgs:
         raise ValueError("images must hold at least one board view")
     h, w = imgs[0].shape[:2]
-    obj_all = np.asarray(board.getChessboardCorners(), np.float64)
-    objp, imgp, used = [], [], []
-    seen: list[tuple[NDArray, NDArray]] = []
-    duplicates: list[tuple[int, int]] = []
-    for k, img in enumerate(imgs):
-        if img.shape[:2] != (h, w):
-            raise ValueError(f"images[{k}] has shape {img.shape}, expected {(h, w)}")
-        c, ids = detect_charuco(img, board)
-        if len(ids) < min_corners:
-            continue
-        dup = _same_pose(c, ids, seen)
-        if dup is not None:
-            duplicates.append((k, used[dup]))
-            continue
-        seen.append((np.asarray(c, np.float64).reshape(-1, 2), np.ravel(ids)))
-        objp.append(obj_all[ids].reshape(1, -1, 3))
-        imgp.append(c.reshape(1, -1, 2))
-        used.append(k)
+    objp, imgp, used, duplicates = _board_views(imgs, board, min_corners)
     if len(objp) < 3:
         same = "".join(f"; view {a} repeats view {b}" for a, b in duplicates)
         raise ValueError(
@@ -384,17 +367,7 @@ def calibrate_fisheye(
     rms, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
         objp, imgp, (w, h), K, D, flags=flags, criteria=crit
     )
-    per_view = []
-    for o, p, rv, tv in zip(objp, imgp, rvecs, tvecs):
-        proj, _ = cv2.fisheye.projectPoints(o, rv, tv, K, D)
-        per_view.append(float(np.sqrt(np.mean(np.sum((proj - p) ** 2, axis=-1)))))
-    all_res = np.concatenate(
-        [
-            (cv2.fisheye.projectPoints(o, rv, tv, K, D)[0] - p).reshape(-1, 2)
-            for o, p, rv, tv in zip(objp, imgp, rvecs, tvecs)
-        ]
-    )
-    rms_px = float(np.sqrt(np.mean(np.sum(all_res**2, axis=1))))
+    per_view, rms_px = _reprojection_rms(objp, imgp, rvecs, tvecs, K, D)
     lens = FisheyeLens(
         "kannala_brandt",
         fx=float(K[0, 0]),
@@ -422,6 +395,55 @@ def calibrate_fisheye(
             "seconds": time.perf_counter() - t0,
         },
     )
+
+
+def _board_views(
+    imgs: list[NDArray], board: Any, min_corners: int
+) -> tuple[list[NDArray], list[NDArray], list[int], list[tuple[int, int]]]:
+    """The views :func:`calibrate_fisheye` uses: board points, image points, view indices,
+    and (view, earlier view) pairs skipped as repeating a pose.
+
+    Views with fewer than ``min_corners`` ChArUco corners are skipped.
+    """
+    h, w = imgs[0].shape[:2]
+    obj_all = np.asarray(board.getChessboardCorners(), np.float64)
+    objp, imgp, used = [], [], []
+    seen: list[tuple[NDArray, NDArray]] = []
+    duplicates: list[tuple[int, int]] = []
+    for k, img in enumerate(imgs):
+        if img.shape[:2] != (h, w):
+            raise ValueError(f"images[{k}] has shape {img.shape}, expected {(h, w)}")
+        c, ids = detect_charuco(img, board)
+        if len(ids) < min_corners:
+            continue
+        dup = _same_pose(c, ids, seen)
+        if dup is not None:
+            duplicates.append((k, used[dup]))
+            continue
+        seen.append((np.asarray(c, np.float64).reshape(-1, 2), np.ravel(ids)))
+        objp.append(obj_all[ids].reshape(1, -1, 3))
+        imgp.append(c.reshape(1, -1, 2))
+        used.append(k)
+    return objp, imgp, used, duplicates
+
+
+def _reprojection_rms(
+    objp: list[NDArray], imgp: list[NDArray], rvecs: Any, tvecs: Any, K: NDArray, D: NDArray
+) -> tuple[list[float], float]:
+    """Each view's rms reprojection error and that of all points together (pixels)."""
+    import cv2
+
+    per_view = []
+    for o, p, rv, tv in zip(objp, imgp, rvecs, tvecs):
+        proj, _ = cv2.fisheye.projectPoints(o, rv, tv, K, D)
+        per_view.append(float(np.sqrt(np.mean(np.sum((proj - p) ** 2, axis=-1)))))
+    all_res = np.concatenate(
+        [
+            (cv2.fisheye.projectPoints(o, rv, tv, K, D)[0] - p).reshape(-1, 2)
+            for o, p, rv, tv in zip(objp, imgp, rvecs, tvecs)
+        ]
+    )
+    return per_view, float(np.sqrt(np.mean(np.sum(all_res**2, axis=1))))
 
 
 def _safe_theta_max(k: NDArray, theta_max: float) -> float:

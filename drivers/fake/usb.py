@@ -348,14 +348,65 @@ class RemoteServer:
         except KeyError:
             raise usb_error("nodev") from None
 
-    def _client(self, conn: Any) -> None:
+    def _call(self, op: str, a: list) -> Any:
+        """Run one backend operation of a request; its JSON-able result (bytes as base64)."""
+        import array
         import base64
+
+        be = self.backend
+        if op == "enumerate_devices":
+            out = []
+            for ref in be.enumerate_devices():
+                key = f"{be.fakes.index(ref.dev)}:{ref.generation}"
+                self._refs[key] = ref
+                out.append(key)
+            res: Any = out
+        elif op == "get_device_descriptor":
+            res = _desc_dict(be.get_device_descriptor(self._ref(a[0])))
+        elif op == "get_configuration_descriptor":
+            res = _desc_dict(be.get_configuration_descriptor(self._ref(a[0]), a[1]))
+        elif op == "get_interface_descriptor":
+            res = _desc_dict(be.get_interface_descriptor(self._ref(a[0]), *a[1:]))
+        elif op == "get_endpoint_descriptor":
+            res = _desc_dict(be.get_endpoint_descriptor(self._ref(a[0]), *a[1:]))
+        elif op in ("bulk_write", "intr_write"):
+            res = getattr(be, op)(self._ref(a[0]), a[1], a[2], base64.b64decode(a[3]), a[4])
+        elif op in ("bulk_read", "intr_read"):
+            buff = array.array("B", bytes(_transfer_length(a[3], op)))
+            n = getattr(be, op)(self._ref(a[0]), a[1], a[2], buff, a[4])
+            res = base64.b64encode(buff[:n].tobytes()).decode()
+        elif op == "ctrl_transfer":
+            h, bm, req_, val, idx, payload, tmo = a
+            if bm & 0x80:
+                buff = array.array("B", bytes(_transfer_length(payload, op)))
+                n = be.ctrl_transfer(self._ref(h), bm, req_, val, idx, buff, tmo)
+                res = base64.b64encode(buff[:n].tobytes()).decode()
+            else:
+                buff = array.array("B", base64.b64decode(payload))
+                res = be.ctrl_transfer(self._ref(h), bm, req_, val, idx, buff, tmo)
+        elif op in (
+            "open_device",
+            "set_configuration",
+            "get_configuration",
+            "set_interface_altsetting",
+            "claim_interface",
+            "release_interface",
+            "clear_halt",
+            "reset_device",
+        ):
+            r = getattr(be, op)(self._ref(a[0]), *a[1:])
+            res = a[0] if op == "open_device" else r
+        else:
+            raise ValueError(f"op={op!r}: not a backend operation")
+        return res
+
+    def _client(self, conn: Any) -> None:
+        """Answer one client's requests (a JSON line each) until it hangs up."""
         import json
         import socket
 
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         f = conn.makefile("rwb")
-        be = self.backend
         while True:
             try:
                 line = f.readline(MAX_REQUEST_LINE + 1)
@@ -369,55 +420,7 @@ class RemoteServer:
             try:
                 req = json.loads(line)
                 op, a = req["op"], req.get("args", [])
-                if op == "enumerate_devices":
-                    out = []
-                    for ref in be.enumerate_devices():
-                        key = f"{be.fakes.index(ref.dev)}:{ref.generation}"
-                        self._refs[key] = ref
-                        out.append(key)
-                    res: Any = out
-                elif op == "get_device_descriptor":
-                    res = _desc_dict(be.get_device_descriptor(self._ref(a[0])))
-                elif op == "get_configuration_descriptor":
-                    res = _desc_dict(be.get_configuration_descriptor(self._ref(a[0]), a[1]))
-                elif op == "get_interface_descriptor":
-                    res = _desc_dict(be.get_interface_descriptor(self._ref(a[0]), *a[1:]))
-                elif op == "get_endpoint_descriptor":
-                    res = _desc_dict(be.get_endpoint_descriptor(self._ref(a[0]), *a[1:]))
-                elif op in ("bulk_write", "intr_write"):
-                    res = getattr(be, op)(self._ref(a[0]), a[1], a[2], base64.b64decode(a[3]), a[4])
-                elif op in ("bulk_read", "intr_read"):
-                    import array
-
-                    buff = array.array("B", bytes(_transfer_length(a[3], op)))
-                    n = getattr(be, op)(self._ref(a[0]), a[1], a[2], buff, a[4])
-                    res = base64.b64encode(buff[:n].tobytes()).decode()
-                elif op == "ctrl_transfer":
-                    import array
-
-                    h, bm, req_, val, idx, payload, tmo = a
-                    if bm & 0x80:
-                        buff = array.array("B", bytes(_transfer_length(payload, op)))
-                        n = be.ctrl_transfer(self._ref(h), bm, req_, val, idx, buff, tmo)
-                        res = base64.b64encode(buff[:n].tobytes()).decode()
-                    else:
-                        buff = array.array("B", base64.b64decode(payload))
-                        res = be.ctrl_transfer(self._ref(h), bm, req_, val, idx, buff, tmo)
-                elif op in (
-                    "open_device",
-                    "set_configuration",
-                    "get_configuration",
-                    "set_interface_altsetting",
-                    "claim_interface",
-                    "release_interface",
-                    "clear_halt",
-                    "reset_device",
-                ):
-                    r = getattr(be, op)(self._ref(a[0]), *a[1:])
-                    res = a[0] if op == "open_device" else r
-                else:
-                    raise ValueError(f"op={op!r}: not a backend operation")
-                reply = {"ok": res}
+                reply = {"ok": self._call(op, a)}
             except usb.core.USBError as exc:
                 reply = {
                     "error": {

@@ -179,17 +179,7 @@ class Plan:
             raise ValueError(f"theta_i_deg {self.theta_i_deg!r}: expected angles in [0, 90)")
         if len(set(angles)) != len(angles):
             raise ValueError(f"theta_i_deg {self.theta_i_deg!r} has repeated angles")
-        rot = self.rotations_deg
-        if rot is None:
-            p = info["params"]
-            aniso = "alpha_x" in p and "alpha_y" in p and p["alpha_x"] != p["alpha_y"]
-            # a Lafortune lobe's C_y multiplies y_i·y_o, which is 0 whenever φi = 0 in the
-            # sample frame: without a second rotation C_y is not measured at all
-            xy = any(c.strip() in _XY_MODELS for c in model.split("+"))
-            rot = (0.0, 45.0, 90.0) if aniso or xy else (0.0,)
-        rot = tuple(float(r) for r in rot)
-        if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
-            raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")
+        rot = self._resolved_rotations(info["params"], model)
         exp = self.exposures_s
         if exp is not None:
             exp = tuple(float(e) for e in exp)
@@ -210,19 +200,7 @@ class Plan:
         compare = tuple(c for c in compare if c != model)
         for c in compare:
             parse_model(c)
-        if self.thinning_mode not in _THINNING:
-            raise ValueError(
-                f"thinning_mode {self.thinning_mode!r}; expected one of {sorted(_THINNING)}"
-            )
-        allowed = _THINNING[self.thinning_mode]
-        given = dict(allowed if self.thinning is None else self.thinning)
-        bad = sorted(set(given) - set(allowed))
-        if bad:
-            raise ValueError(
-                f"thinning {bad} not options of thinning_mode {self.thinning_mode!r}; "
-                f"expected some of {sorted(allowed)}"
-            )
-        thinning = tuple((str(k), v) for k, v in given.items())
+        thinning = self._resolved_thinning()
         if not isinstance(self.debias, bool | np.bool_):
             raise ValueError(f"debias {self.debias!r}: expected True or False")
         from gonio.campaign.knowledge import check_corrections
@@ -253,6 +231,38 @@ class Plan:
             debias=bool(self.debias),
             corrections=corrections,
         )
+
+    def _resolved_rotations(self, params: Mapping[str, Any], model: str) -> tuple[float, ...]:
+        """``rotations_deg``, checked; by default 0, 45 and 90° where the material is
+        anisotropic or the model has a lobe with an x/y coefficient, else 0 alone."""
+        rot = self.rotations_deg
+        if rot is None:
+            p = params
+            aniso = "alpha_x" in p and "alpha_y" in p and p["alpha_x"] != p["alpha_y"]
+            # a Lafortune lobe's C_y multiplies y_i·y_o, which is 0 whenever φi = 0 in the
+            # sample frame: without a second rotation C_y is not measured at all
+            xy = any(c.strip() in _XY_MODELS for c in model.split("+"))
+            rot = (0.0, 45.0, 90.0) if aniso or xy else (0.0,)
+        rot = tuple(float(r) for r in rot)
+        if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
+            raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")
+        return rot
+
+    def _resolved_thinning(self) -> tuple[tuple[str, float], ...]:
+        """``thinning`` as (option, value) pairs of ``thinning_mode``, its defaults filled in."""
+        if self.thinning_mode not in _THINNING:
+            raise ValueError(
+                f"thinning_mode {self.thinning_mode!r}; expected one of {sorted(_THINNING)}"
+            )
+        allowed = _THINNING[self.thinning_mode]
+        given = dict(allowed if self.thinning is None else self.thinning)
+        bad = sorted(set(given) - set(allowed))
+        if bad:
+            raise ValueError(
+                f"thinning {bad} not options of thinning_mode {self.thinning_mode!r}; "
+                f"expected some of {sorted(allowed)}"
+            )
+        return tuple((str(k), v) for k, v in given.items())
 
     def _resolved_instrument(self) -> tuple[str, int, tuple[int, int] | None]:
         """``preset``, ``instrument_seed`` and ``binning``, checked, defaults filled in."""
