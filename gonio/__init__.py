@@ -8,8 +8,10 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   §3: the LBL imaging gonioreflectometer, its calibration and data reduction.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   §5.1: the Cornell automated three-axis gonioreflectometer.
 """
 
 __version__ = "0.1.0"

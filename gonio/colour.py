@@ -27,6 +27,7 @@ References
 ----------
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   §5.1: the 31 convolved wavelength samples, also converted to RGB values.
 """
 
 from __future__ import annotations

@@ -17,13 +17,13 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Eq. 5b and its vector substitutions: the half vector.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
-
-Ward 1992, eq. 5b and its vector substitutions (half vector).
-P. Shirley and K. Chiu, "A low distortion map between disk and square", JGT 2(3), 1997 —
-the map used by Li and Torrance 2005 §5.1 for its 441-position
-hemispherical sampling.
+   §5.1: the 441-position hemispherical sampling, on the map of [ShirleyChiu1997]_.
+.. [ShirleyChiu1997] P. Shirley and K. Chiu, "A low distortion map between disk and square",
+   Journal of Graphics Tools 2(3), 45-52, 1997. https://doi.org/10.1080/10867651.1997.10487479
+   The concentric map of :func:`shirley_chiu_square_to_disk`.
 """
 
 from __future__ import annotations

@@ -17,13 +17,11 @@ References
    metals and other specular materials" (technical report; revised as "Compact metallic
    reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
    1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
+   Eq. 11, 19-22 (sampling a cosine lobe) and 26 (the grazing albedo).
 .. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
    approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
    https://doi.org/10.1145/258734.258801
-
-Neumann et al. 1999 eq. 11, 19-22, 26;
-Lafortune et al. 1997 eq. 5 (a generalized lobe is a scaled cosine
-lobe around ``u' = Mu/|Mu|``).
+   Eq. 5: a generalized lobe is a scaled cosine lobe around ``u' = Mu/|Mu|``.
 """
 
 from __future__ import annotations

@@ -2,19 +2,16 @@
 
 References
 ----------
+.. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
+   approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
+   https://doi.org/10.1145/258734.258801
+   Eq. 3-5 (the generalized lobe as a scaled cosine lobe), eq. 6 (non-Lambertian diffuse
+   lobe, ``c_x = c_y = 0``), eq. 7 (mirror term), eq. 8 (sum of lobes), table 1 (blue paint).
 .. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
    metals and other specular materials" (technical report; revised as "Compact metallic
    reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
    1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
-.. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
-   approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
-   https://doi.org/10.1145/258734.258801
-
-Lafortune et al. ("Non-Linear
-Approximation of Reflectance Functions", SIGGRAPH 1997): eq. 3-5 (the generalized lobe as a
-scaled cosine lobe), eq. 6 (non-Lambertian diffuse lobe, ``c_x = c_y = 0``), eq. 7 (mirror
-term), eq. 8 (sum of lobes), table 1 (blue paint). Neumann et al. 1999 eq. 14-16 (the
-p-exponent per lobe).
+   Eq. 14-16: the p-exponent per lobe.
 """
 
 from __future__ import annotations

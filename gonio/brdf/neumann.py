@@ -10,19 +10,18 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Eq. 5a and 7: the Ward model that eq. 34-35 of [Neumann1999]_ correct, and its sampling.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Eq. 5: Schlick's Fresnel approximation, used by :class:`CookTorrance` when ``f0`` is given.
 .. [Neumann1999] L. Neumann, A. Neumann and L. Szirmay-Kalos, "New simple reflectance models for
    metals and other specular materials" (technical report; revised as "Compact metallic
    reflectance models", Computer Graphics Forum 18(3), Proc. Eurographics '99, 161-172,
    1999, https://doi.org/10.1111/1467-8659.00337). Equation numbers are the report's.
-
-Neumann et al. ("Compact Metallic
-Reflectance Models", 1999): eq. 5-7 and 9-10 (Phong and the corrected model), eq. 12 (p-model),
-eq. 13 (retro-reflection), eq. 19-25 (importance sampling), eq. 26 (grazing albedo),
-eq. 27-30 (metals and plastics), eq. 32-33 (Blinn), eq. 34-35 (Ward), eq. 36-37
-(Cook-Torrance), tables 1-3. Li and Torrance 2005 eq. 5 (Schlick's
-Fresnel approximation used by :class:`CookTorrance` when ``f0`` is given).
+   Eq. 5-7 and 9-10 (Phong and the corrected model), eq. 12 (p-model), eq. 13
+   (retro-reflection), eq. 19-25 (importance sampling), eq. 26 (grazing albedo), eq. 27-30
+   (metals and plastics), eq. 32-33 (Blinn), eq. 34-35 (Ward), eq. 36-37 (Cook-Torrance),
+   tables 1-3.
 """
 
 from __future__ import annotations

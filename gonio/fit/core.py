@@ -59,15 +59,14 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   §4: least-squares fitting of eq. 5a to the reduced data.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   §5, eq. 15: the cosine-weighted fitting error, one roughness shared by all bands.
 .. [Lafortune1997] E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg, "Non-linear
    approximation of reflectance functions", Proc. SIGGRAPH '97, 117-126, 1997.
    https://doi.org/10.1145/258734.258801
-
-Ward 1992, §4 (least-squares fitting of eq. 5a to the reduced data);
-Lafortune et al. 1997, §5 (non-linear (Levenberg-Marquardt) fitting of lobe sums);
-Li and Torrance 2005, §5, eq. 15 (cosine-weighted fitting error, shared roughness).
+   §5: non-linear (Levenberg-Marquardt) fitting of lobe sums.
 
 Examples
 --------
