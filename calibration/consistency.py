@@ -32,7 +32,7 @@ Ward, G. J. (1992). Measuring and modeling anisotropic reflection. *Computer Gra
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -52,14 +52,19 @@ _ROLE_LABELS: dict[str, tuple[str, ...] | None] = {
 }
 
 
+def _number(v: Any, cast: Callable[[Any], Any], key: str, src: str, what: str = "a number") -> Any:
+    """``cast(v)`` of the side-car field ``key``; ``ValueError`` naming ``src`` and the field."""
+    try:
+        return cast(v)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{src}: side-car field {key!r} must be {what}, got {v!r}") from None
+
+
 def _field(meta: Mapping[str, Any], keys: tuple[str, ...], src: str, what: str) -> float:
     v = _meta_get(meta, keys)
     if v is None:
         raise ValueError(f"{src}: side-car field {keys[0]!r} ({what}) is missing")
-    try:
-        f = float(v)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{src}: side-car field {keys[0]!r} must be a number, got {v!r}") from None
+    f = _number(v, float, keys[0], src)
     if not (math.isfinite(f) and f > 0):
         raise ValueError(f"{src}: side-car field {keys[0]!r} must be finite and > 0, got {v!r}")
     return f
@@ -69,21 +74,11 @@ def _adc_max(meta: Mapping[str, Any], src: str) -> int:
     top = _meta_get(meta, ("max_dn",))
     if top is None:
         bits = _meta_get(meta, ("adc_bits", "bit_depth"), 16)
-        try:
-            b = int(bits)
-        except (TypeError, ValueError, OverflowError):
-            raise ValueError(
-                f"{src}: side-car field 'adc_bits' must be an integer, got {bits!r}"
-            ) from None
+        b = _number(bits, int, "adc_bits", src, "an integer")
         if not 1 <= b <= 32 or b != bits:
             raise ValueError(f"{src}: side-car field 'adc_bits' = {bits!r} is not in [1, 32]")
         return 2**b - 1
-    try:
-        t = int(top)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(
-            f"{src}: side-car field 'max_dn' must be an integer, got {top!r}"
-        ) from None
+    t = _number(top, int, "max_dn", src, "an integer")
     if t < 1 or t != top:
         raise ValueError(f"{src}: side-car field 'max_dn' must be an integer >= 1, got {top!r}")
     return t
@@ -117,12 +112,7 @@ def check_frame(image: NDArray, meta: Mapping[str, Any], src: str) -> dict[str, 
             f"(max_dn {top}, adc_bits {_meta_get(meta, ('adc_bits', 'bit_depth'))})"
         )
     black = _meta_get(meta, ("black_level_dn", "black_level_adu", "black_level", "bias_adu"), 0.0)
-    try:
-        black = float(black)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(
-            f"{src}: side-car field 'black_level_dn' must be a number, got {black!r}"
-        ) from None
+    black = _number(black, float, "black_level_dn", src)
     if hi <= black and hi == int(img.min()):
         raise ValueError(
             f"{src}: every pixel is {hi} DN, not above the side-car's black level "
@@ -140,12 +130,7 @@ def sidecar_angle(
     v = meta.get(key, default)
     if v is None:
         raise ValueError(f"{src}: side-car field {key!r} (radians) is missing")
-    try:
-        f = float(v)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(
-            f"{src}: side-car field {key!r} must be a number (radians), got {v!r}"
-        ) from None
+    f = _number(v, float, key, src, "a number (radians)")
     if not math.isfinite(f):
         raise ValueError(f"{src}: side-car field {key!r} must be finite, got {v!r}")
     return f

@@ -12,10 +12,15 @@ from gonio.drivers.testing import ScriptedUsbTransport
 from gonio.drivers.transport import TransportTimeout
 
 
-def cmd(code: int, tid: int, *params: int) -> bytes:
-    return struct.pack("<IHHI", 12 + 4 * len(params), 1, code, tid) + b"".join(
+def _container(kind: int, code: int, tid: int, params: tuple[int, ...]) -> bytes:
+    """A PTP container of ``kind`` (1 command, 3 response, 4 event) with 32-bit params."""
+    return struct.pack("<IHHI", 12 + 4 * len(params), kind, code, tid) + b"".join(
         struct.pack("<I", p) for p in params
     )
+
+
+def cmd(code: int, tid: int, *params: int) -> bytes:
+    return _container(1, code, tid, params)
 
 
 def data(code: int, tid: int, payload: bytes) -> bytes:
@@ -23,15 +28,38 @@ def data(code: int, tid: int, payload: bytes) -> bytes:
 
 
 def resp(code: int, tid: int, *params: int) -> bytes:
-    return struct.pack("<IHHI", 12 + 4 * len(params), 3, code, tid) + b"".join(
-        struct.pack("<I", p) for p in params
-    )
+    return _container(3, code, tid, params)
 
 
 def event(code: int, tid: int, *params: int) -> bytes:
-    return struct.pack("<IHHI", 12 + 4 * len(params), 4, code, tid) + b"".join(
-        struct.pack("<I", p) for p in params
-    )
+    return _container(4, code, tid, params)
+
+
+def get_prop(tid: int, prop: int, value: bytes) -> list:
+    """GetDevicePropValue of ``prop``: command, the camera's data phase, OK."""
+    return [
+        ("out", 0x02, cmd(0x1015, tid, prop)),
+        ("in", 0x81, data(0x1015, tid, value)),
+        ("in", 0x81, resp(0x2001, tid)),
+    ]
+
+
+def set_prop(tid: int, prop: int, value: bytes, code: int = 0x2001) -> list:
+    """SetDevicePropValue of ``prop``: command, the host's data phase, response ``code``."""
+    return [
+        ("out", 0x02, cmd(0x1016, tid, prop)),
+        ("out", 0x02, data(0x1016, tid, value)),
+        ("in", 0x81, resp(code, tid)),
+    ]
+
+
+#: Capture at exposure 100 (0.01 s) and f-number 800 (f/8): both read, then InitiateCapture.
+CAPTURE_START = [
+    *get_prop(2, 0x500D, b"\x64\0\0\0"),
+    *get_prop(3, 0x5007, b"\x20\x03"),
+    ("out", 0x02, cmd(0x100E, 4, 0, 0)),
+    ("in", 0x81, resp(0x2001, 4)),
+]
 
 
 OPEN = [
@@ -103,18 +131,10 @@ def test_get_device_info_decodes_dataset():
 def test_exposure_and_fnumber_get_set():
     cam, t = make(
         [
-            ("out", 0x02, cmd(0x1016, 2, 0x500D)),
-            ("out", 0x02, data(0x1016, 2, b"\xf4\x01\0\0")),
-            ("in", 0x81, resp(0x2001, 2)),
-            ("out", 0x02, cmd(0x1015, 3, 0x500D)),
-            ("in", 0x81, data(0x1015, 3, b"\xf4\x01\0\0")),
-            ("in", 0x81, resp(0x2001, 3)),
-            ("out", 0x02, cmd(0x1016, 4, 0x5007)),
-            ("out", 0x02, data(0x1016, 4, b"\x30\x02")),
-            ("in", 0x81, resp(0x2001, 4)),
-            ("out", 0x02, cmd(0x1015, 5, 0x5007)),
-            ("in", 0x81, data(0x1015, 5, b"\x30\x02")),
-            ("in", 0x81, resp(0x2001, 5)),
+            *set_prop(2, 0x500D, b"\xf4\x01\0\0"),
+            *get_prop(3, 0x500D, b"\xf4\x01\0\0"),
+            *set_prop(4, 0x5007, b"\x30\x02"),
+            *get_prop(5, 0x5007, b"\x30\x02"),
         ]
     )
     cam.exposure = 0.05
@@ -125,13 +145,7 @@ def test_exposure_and_fnumber_get_set():
 
 
 def test_invalid_prop_value_raises_ptp_error():
-    cam, t = make(
-        [
-            ("out", 0x02, cmd(0x1016, 2, 0x5007)),
-            ("out", 0x02, data(0x1016, 2, b"\xe8\x03")),
-            ("in", 0x81, resp(0x201C, 2)),
-        ]
-    )
+    cam, t = make(set_prop(2, 0x5007, b"\xe8\x03", code=0x201C))
     with pytest.raises(PTPError) as ei:
         cam.f_number = 10.0
     assert ei.value.code == 0x201C and "InvalidDevicePropValue" in str(ei.value)
@@ -158,14 +172,7 @@ def test_capture_sequence_bytes():
     )
     cam, t = make(
         [
-            ("out", 0x02, cmd(0x1015, 2, 0x500D)),
-            ("in", 0x81, data(0x1015, 2, b"\x64\0\0\0")),
-            ("in", 0x81, resp(0x2001, 2)),
-            ("out", 0x02, cmd(0x1015, 3, 0x5007)),
-            ("in", 0x81, data(0x1015, 3, b"\x20\x03")),
-            ("in", 0x81, resp(0x2001, 3)),
-            ("out", 0x02, cmd(0x100E, 4, 0, 0)),
-            ("in", 0x81, resp(0x2001, 4)),
+            *CAPTURE_START,
             ("in", 0x83, TransportTimeout("no event yet")),
             ("in", 0x83, event(0x4002, 4, 1)),
             ("in", 0x83, event(0x400D, 4, 4)),
@@ -213,18 +220,7 @@ def test_object_handles_and_delete():
 
 
 def test_capture_without_events_times_out_clearly():
-    cam, t = make(
-        [
-            ("out", 0x02, cmd(0x1015, 2, 0x500D)),
-            ("in", 0x81, data(0x1015, 2, b"\x64\0\0\0")),
-            ("in", 0x81, resp(0x2001, 2)),
-            ("out", 0x02, cmd(0x1015, 3, 0x5007)),
-            ("in", 0x81, data(0x1015, 3, b"\x20\x03")),
-            ("in", 0x81, resp(0x2001, 3)),
-            ("out", 0x02, cmd(0x100E, 4, 0, 0)),
-            ("in", 0x81, resp(0x2001, 4)),
-        ]
-    )
+    cam, t = make(CAPTURE_START)
 
     def read(ep, size, timeout_ms, _orig=t.read):
         if ep == 0x83:
