@@ -38,6 +38,8 @@ from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from gonio.io.atomic import atomic_write_bytes  # noqa: E402
+
 TH = math.radians(30)
 
 
@@ -532,8 +534,7 @@ def main(argv=None):
     out = {"sizes": results, "bracket": br, "bracket_reuse": reuse, "campaign_stage": camp,
            "noise": nz, "noise_tv": tv, "sensor_effects": fx}  # fmt: skip
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+        atomic_write_bytes(args.json, json.dumps(out, indent=2).encode())
     return out
 
 

@@ -20,6 +20,8 @@ import time
 
 import numpy as np
 
+from gonio.io.atomic import atomic_write_bytes
+
 
 def main(argv=None) -> dict:
     from gonio.simulator import eq3_error, eq3_reflection_angles, make_lens
@@ -55,8 +57,7 @@ def main(argv=None) -> dict:
     print(f"eq3_reflection_angles: {dt * 1e3:.1f} ms per 1e6 angles")
     out = {"rows": rows, "pixels": rows[0]["n_pixels"], "eq3_ms_per_1e6": dt * 1e3}
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+        atomic_write_bytes(args.json, json.dumps(out, indent=2).encode())
     return out
 
 

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from gonio import brdf, fit
+from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
 
 
@@ -104,8 +105,9 @@ def main(argv=None) -> int:
             f"({v['time_s']:.2f} s, converged {v['converged']})"
         )
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"coverage": cov, "noise_free": nf}, f, indent=1)
+        atomic_write_bytes(
+            args.json, json.dumps({"coverage": cov, "noise_free": nf}, indent=1).encode()
+        )
     return 0
 
 

@@ -23,6 +23,8 @@ import resource
 import sys
 import time
 
+from gonio.io.atomic import atomic_write_bytes
+
 SPECTRA = """
 import json, resource, sys, time
 import usb.backend.libusb1 as libusb1
@@ -157,8 +159,7 @@ def main(argv: list[str] | None = None) -> dict:
         for row in rows:
             print("  " + "  ".join(f"{k}={v}" for k, v in row.items()))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(res, f, indent=2)
+        atomic_write_bytes(args.json, json.dumps(res, indent=2).encode())
     return res
 
 

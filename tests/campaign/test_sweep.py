@@ -352,14 +352,21 @@ def dask_client():
         yield client
 
 
-def test_dask_localcluster_matches_inprocess(tmp_path, dask_client):
-    spec = sweep.spec_from_dict(SPEC)
+def _inprocess_and_dask_agree(spec, tmp_path, dask_client):
+    """Run ``spec`` in-process (under ``a``) and on Dask (under ``b``): the same rows and
+    byte-identical ``results.csv``. Returns both results."""
     a = sweep.run_sweep(spec, tmp_path / "a", plot=False)
     b = sweep.run_sweep(spec, tmp_path / "b", executor="dask", client=dask_client, plot=False)
     assert a.rows == b.rows
     assert (tmp_path / "a" / "results.csv").read_bytes() == (
         tmp_path / "b" / "results.csv"
     ).read_bytes()
+    return a, b
+
+
+def test_dask_localcluster_matches_inprocess(tmp_path, dask_client):
+    spec = sweep.spec_from_dict(SPEC)
+    a, b = _inprocess_and_dask_agree(spec, tmp_path, dask_client)
     assert len({t["pid"] for t in b.timings}) == 2  # both workers took part
     # the same through a scheduler address (what `gonio sweep --scheduler tcp://...` does)
     addr = dask_client.scheduler.address
@@ -432,12 +439,7 @@ def test_campaign_sweep_identical_on_dask(tmp_path, dask_client):
             "fixed": {"theta_i_deg": [30.0], "preset": "ideal"},
         }
     )
-    a = sweep.run_sweep(spec, tmp_path / "a", plot=False)
-    b = sweep.run_sweep(spec, tmp_path / "b", executor="dask", client=dask_client, plot=False)
-    assert a.rows == b.rows
-    assert (tmp_path / "a" / "results.csv").read_bytes() == (
-        tmp_path / "b" / "results.csv"
-    ).read_bytes()
+    a, _ = _inprocess_and_dask_agree(spec, tmp_path, dask_client)
     for r in a.rows:
         assert r["converged"] and r["max_rel_err"] < 0.05 and r["rms_log_brdf"] < 0.05
         # the campaign's own results directory is intact beside the sweep's record

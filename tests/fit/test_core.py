@@ -250,22 +250,9 @@ def test_spectral_model_shares_scalars_and_fits_per_band_arrays():
 def test_multistart_escapes_a_bad_start():
     true = brdf.create("ward", **BRASS)
     s = _samples(true, n_ti=6, n_o=80)
-    one = fit.fit(
-        s,
-        "ward",
-        guess=False,
-        init={"alpha_x": 0.9, "alpha_y": 0.0002, "rho_s": 1.0},
-        n_starts=0,
-        max_nfev=30,
-    )
-    many = fit.fit(
-        s,
-        "ward",
-        guess=False,
-        init={"alpha_x": 0.9, "alpha_y": 0.0002, "rho_s": 1.0},
-        n_starts=6,
-        rng=1,
-    )
+    bad_start = dict(guess=False, init={"alpha_x": 0.9, "alpha_y": 0.0002, "rho_s": 1.0})
+    one = fit.fit(s, "ward", **bad_start, n_starts=0, max_nfev=30)
+    many = fit.fit(s, "ward", **bad_start, n_starts=6, rng=1)
     assert many.n_starts == 7
     assert many.chi2 <= one.chi2
     assert many.params["alpha_y"] == pytest.approx(0.16, rel=1e-5)

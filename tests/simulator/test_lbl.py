@@ -87,6 +87,17 @@ def test_lambertian_equal_to_standard_gives_standard_image(inst):
     assert np.allclose((half - bg)[lit.reshape(bg.shape)], 0.5 * (full - bg)[lit.reshape(bg.shape)])
 
 
+def _eq2_on_lit_pixels(inst, v, vs, vb):
+    """Eq. 2 on the pixels the standard lights (``vs > vb``): the mask, the BRDF it gives, and
+    each lit pixel's camera-ray polar and azimuth angles (the inputs of eq. 3)."""
+    lit = vs > vb
+    rho = (v - vb)[lit] / (vs - vb)[lit] * inst.rho_standard / math.pi
+    d = inst.lens.unproject(inst.lens.pixel_grid()[lit])
+    tc = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
+    pc = np.arctan2(d[:, 1], d[:, 0])
+    return lit, rho, tc, pc
+
+
 def test_eq2_recovers_the_brdf_through_eq3(inst):
     """(V - V_bg)/(V_std - V_bg) rho_std/pi = f_r at the angles eq. 3 assigns (ellipsoid)."""
     model = materials.get("rolled_brass")
@@ -95,11 +106,7 @@ def test_eq2_recovers_the_brdf_through_eq3(inst):
     v = inst.electrons(model, TH, ph, **kw)
     vs = inst.electrons(STANDARD, TH, ph, **kw)
     vb = inst.electrons(None, TH, ph, **kw)
-    lit = vs > vb
-    rho = (v - vb)[lit] / (vs - vb)[lit] * inst.rho_standard / math.pi
-    d = inst.lens.unproject(inst.lens.pixel_grid()[lit])
-    tc = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
-    pc = np.arctan2(d[:, 1], d[:, 0])
+    lit, rho, tc, pc = _eq2_on_lit_pixels(inst, v, vs, vb)
     R, D = inst.mirror.radius, inst.mirror.half_separation
     tr, pr = eq3_reflection_angles(tc, pc, R, D, mirror="ellipsoid")
     pl = pr - (inst.source.arm_azimuth - ph)  # dome azimuth -> sample frame
@@ -362,11 +369,7 @@ def test_eq2_hemisphere_with_exact_trace_and_eq3_error(hemi):
     model = materials.get("lightly_brushed_aluminum")
     ph = math.radians(-50)
     v, vs, vb = (hemi.electrons(s, TH, ph, f_number=22.0) for s in (model, STANDARD, None))
-    lit = vs > vb
-    rho = (v - vb)[lit] / (vs - vb)[lit] * hemi.rho_standard / math.pi
-    d = hemi.lens.unproject(hemi.lens.pixel_grid()[lit])
-    tc = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
-    pc = np.arctan2(d[:, 1], d[:, 0])
+    _, rho, tc, pc = _eq2_on_lit_pixels(hemi, v, vs, vb)
     R, D = hemi.mirror.radius, hemi.mirror.half_separation
     tr, pr, _ = traced_reflection_angles(tc, pc, R, D, "hemisphere")
     te, pe = eq3_reflection_angles(tc, pc, R, D)
