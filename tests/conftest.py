@@ -14,6 +14,24 @@ settings.register_profile("dev", max_examples=100, deadline=None)
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 
+@pytest.fixture(scope="session")
+def write_mutated(tmp_path_factory):
+    """``write(text, edits, raw)``: a new file holding ``text`` with each ``(position,
+    insertion)`` of ``edits`` replacing the character at ``position`` (clipped to the end),
+    then the bytes ``raw``; for the hostile-file tests of the file readers (session-scoped,
+    so hypothesis may call it once per example)."""
+
+    def write(text: str, edits, raw: bytes):
+        for pos, ins in edits:
+            pos = min(pos, len(text))
+            text = text[:pos] + ins + text[pos + 1 :]
+        p = tmp_path_factory.mktemp("mutated") / "x.csv"
+        p.write_bytes(text.encode() + raw)
+        return p
+
+    return write
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--device-port",

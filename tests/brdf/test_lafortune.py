@@ -51,12 +51,8 @@ def test_negative_base_contributes_zero_and_n0() -> None:
     assert float(m(_wi(1.2), _wi(1.2))) == pytest.approx(1.0)  # base > 0, n = 0: 1
 
 
-def test_classic_lobe_equals_phong() -> None:
-    rng = np.random.default_rng(2)
-    wi = rng.normal(size=(100, 3))
-    wo = rng.normal(size=(100, 3))
-    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
-    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+def test_classic_lobe_equals_phong(sphere_pairs) -> None:
+    wi, wo = sphere_pairs(100, seed=2)
     laf = brdf.create("lafortune", lobes=[classic_lobe(25.0)])
     np.testing.assert_allclose(
         laf(wi, wo), brdf.create("phong", n=25.0)(wi, wo), rtol=1e-12, atol=1e-300

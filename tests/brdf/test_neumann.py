@@ -268,12 +268,8 @@ def test_p_model_albedo_by_quadrature() -> None:
 
 
 # --------------------------------------------------------------------------- forms
-def test_phong_forms_and_equivalences() -> None:
-    rng = np.random.default_rng(5)
-    wi = rng.normal(size=(200, 3))
-    wo = rng.normal(size=(200, 3))
-    wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
-    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+def test_phong_forms_and_equivalences(sphere_pairs) -> None:
+    wi, wo = sphere_pairs(200, seed=5)
     n = 12.0
     c = (n + 2) / (2 * np.pi)
     r = 2 * wi[:, 2:3] * np.array([0, 0, 1.0]) - wi  # eq. 8

@@ -64,13 +64,8 @@ _MUTATIONS = st.lists(
 
 @settings(max_examples=300, deadline=None)
 @given(edits=_MUTATIONS, raw=st.binary(max_size=8))
-def test_mutated_tables_give_a_table_or_a_value_error(tmp_path_factory, edits, raw):
-    text = GOOD
-    for pos, ins in edits:
-        pos = min(pos, len(text))
-        text = text[:pos] + ins + text[pos + 1 :]
-    p = tmp_path_factory.mktemp("t") / "x.csv"
-    p.write_bytes(text.encode() + raw)
+def test_mutated_tables_give_a_table_or_a_value_error(write_mutated, edits, raw):
+    p = write_mutated(GOOD, edits, raw)
     try:
         s = read_samples(p)
     except ValueError:

@@ -25,13 +25,8 @@ _MUTATIONS = st.lists(
 
 @settings(max_examples=200, deadline=None)
 @given(edits=_MUTATIONS, raw=st.binary(max_size=6))
-def test_mutated_plans_give_a_plan_or_a_value_error(tmp_path_factory, edits, raw):
-    text = GOOD
-    for pos, ins in edits:
-        pos = min(pos, len(text))
-        text = text[:pos] + ins + text[pos + 1 :]
-    p = tmp_path_factory.mktemp("p") / "x.csv"
-    p.write_bytes(text.encode() + raw)
+def test_mutated_plans_give_a_plan_or_a_value_error(write_mutated, edits, raw):
+    p = write_mutated(GOOD, edits, raw)
     try:
         plan = read_plan_csv(p)
     except ValueError:
