@@ -9,6 +9,7 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   §3.2: calibration and data reduction, eq. 2 and eq. 3.
 """
 
 from gonio.calibration.angles import MirrorGeometry, reflection_directions, trace

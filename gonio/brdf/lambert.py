@@ -1,14 +1,16 @@
 """The Lambertian (ideal diffuse) reflector.
 
-f_r = ρ/π, the diffuse term of every model in the seeds (e.g. Ward 1992
+f_r = ρ/π, the diffuse term of every model gonio implements (e.g. Ward 1992
 eq. 4, first term; Oren and Nayar 1994, the σ = 0 limit of eq. 25-30).
 
 References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Eq. 4, its first term ρ_d/π.
 .. [OrenNayar1994] M. Oren and S. K. Nayar, "Generalization of Lambert's reflectance model",
    Proc. SIGGRAPH '94, 239-246, 1994. https://doi.org/10.1145/192161.192213
+   Eq. 25-30 in the limit σ = 0.
 """
 
 from __future__ import annotations

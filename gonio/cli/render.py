@@ -8,6 +8,7 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   §3, Figure 4 (a raw image of the gonioreflectometer) and eq. 3 (its angle grid).
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Eq. 2 (the reduction) and eq. 3 with its limits (§3.3).
 """
 
 from __future__ import annotations

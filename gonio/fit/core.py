@@ -97,6 +97,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gonio import brdf as _brdf
+from gonio._validate import check_scalar
 from gonio.brdf.base import BRDF
 from gonio.brdf.composite import Sum
 from gonio.fit.linear import solve_bounded
@@ -1448,13 +1449,8 @@ def _rms(r: NDArray) -> float:
 
 
 def _as_float(v: Any, key: str) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"value of parameter {key!r} must be a number, got {v!r}") from None
-    if not math.isfinite(f):
-        raise ValueError(f"value of parameter {key!r} must be finite, got {v!r}")
-    return f
+    """``v`` as a finite float; ``ValueError`` naming the parameter ``key`` and the value."""
+    return check_scalar(v, f"value of parameter {key!r}")
 
 
 def _jacobian(fun: Callable, x: NDArray, lb: NDArray, ub: NDArray, r0: NDArray) -> NDArray:
