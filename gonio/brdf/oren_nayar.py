@@ -293,9 +293,8 @@ def _k_on_numeric(wi, wo, u, w, sigma, hcoef, out_d, out_i):  # pragma: no cover
     """Scalar kernel of :meth:`OrenNayarNumeric._block` (same pieces, nodes and formulas).
 
     Returns the unscaled integrals: ``out_d`` (direct, × ρ/π) and ``out_i`` (× ρ²/π).
-    One function on purpose (over 80 lines): numba compiles it to one loop over the
-    directions with every intermediate in registers; split into calls, each piece would
-    need its own arrays or rely on inlining.
+    One function on purpose (over 80 lines): a kernel that :func:`gonio.brdf._jit.lazy_kernel`
+    compiles cannot call plain-Python helpers (the module docstring of :mod:`gonio.brdf._jit`).
     """
     half_pi = 0.5 * math.pi
     two_pi_inv = 2.0 / math.pi
