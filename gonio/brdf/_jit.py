@@ -7,9 +7,11 @@ is compiled and the models use their numpy paths.
 
 A kernel is one function, even past 80 lines: numba refuses a call to a plain-Python helper
 ("Untyped global name"), so every piece split off a kernel would have to be compiled first and
-bound into the kernel's globals, outside this one lazy step. Numba compiles the single function
-to one loop with every intermediate in registers. (The run time of split kernels has not been
-measured.)
+bound into the kernel's globals, outside this one lazy step; and the split costs time. The
+Li-Torrance kernel split into three compiled helpers (the directional roughness, the
+directional-diffuse term, the subsurface terms) gave bit-identical values but took 1.04-1.50
+times as long (median of 7 interleaved runs each, 200 000 direction pairs, 31 bands, three
+Cornell presets with and without the specular box, measured side by side in one process).
 """
 
 from __future__ import annotations

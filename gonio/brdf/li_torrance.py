@@ -172,7 +172,8 @@ def _k_li_torrance(wi, wo, out, kdd, kudf, kuds, kfs, f0, lam_um, sigma, tau_x, 
     """Every component of eq. 3-14 (and 20-26) for one direction pair per iteration.
 
     One function on purpose (over 80 lines): a kernel that :func:`gonio.brdf._jit.lazy_kernel`
-    compiles cannot call plain-Python helpers (the module docstring of :mod:`gonio.brdf._jit`).
+    compiles cannot call plain-Python helpers, and compiled helpers cost time (measured for
+    the Li-Torrance kernel; the module docstring of :mod:`gonio.brdf._jit`).
     """
     on_dd, on_udf, on_uds, on_fs, aniso, shadow, eff, shortcut, box = flags
     thr = 1.0 - 0.005 ** (sigma / tau_x)  # eq. 7 threshold of an isotropic surface

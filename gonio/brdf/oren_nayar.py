@@ -294,7 +294,8 @@ def _k_on_numeric(wi, wo, u, w, sigma, hcoef, out_d, out_i):  # pragma: no cover
 
     Returns the unscaled integrals: ``out_d`` (direct, × ρ/π) and ``out_i`` (× ρ²/π).
     One function on purpose (over 80 lines): a kernel that :func:`gonio.brdf._jit.lazy_kernel`
-    compiles cannot call plain-Python helpers (the module docstring of :mod:`gonio.brdf._jit`).
+    compiles cannot call plain-Python helpers, and compiled helpers cost time (measured for
+    the Li-Torrance kernel; the module docstring of :mod:`gonio.brdf._jit`).
     """
     half_pi = 0.5 * math.pi
     two_pi_inv = 2.0 / math.pi
