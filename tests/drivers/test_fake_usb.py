@@ -360,6 +360,13 @@ def test_remote_server_refuses_huge_reads_before_allocating(bus):
         srv.close()
 
 
+def _wait_until(condition, timeout: float = 10.0) -> None:
+    """Poll ``condition`` every 10 ms until it holds or ``timeout`` seconds pass."""
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
 def test_remote_server_bounds_its_client_threads(bus):
     import json
     import socket
@@ -371,7 +378,9 @@ def test_remote_server_bounds_its_client_threads(bus):
     n0 = threading.active_count()
     socks = [socket.create_connection((host, int(port))) for _ in range(fakeusb.MAX_CLIENTS)]
     try:
-        time.sleep(0.2)
+        # the server starts one thread per accepted client: wait for them (a fixed 0.2 s
+        # sleep saw 15 of 16 on a loaded machine), then check it never starts more
+        _wait_until(lambda: threading.active_count() - n0 >= fakeusb.MAX_CLIENTS)
         assert threading.active_count() - n0 == fakeusb.MAX_CLIENTS
         extra = [socket.create_connection((host, int(port))) for _ in range(10)]
         for s in extra:
@@ -384,5 +393,5 @@ def test_remote_server_bounds_its_client_threads(bus):
         for s in socks:
             s.close()
         srv.close()
-    time.sleep(0.2)
+    _wait_until(lambda: threading.active_count() <= n0)
     assert threading.active_count() <= n0
