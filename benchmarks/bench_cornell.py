@@ -1,6 +1,12 @@
 """Timing of the simulated Cornell gonioreflectometer, beside the real instrument's estimate.
 
 Run: ``python benchmarks/bench_cornell.py [--material NAME ...] [--quick] [--json PATH]``
+or ``python benchmarks/bench_cornell.py --realistic [--pairs 5] [--material NAME ...]``
+
+``--realistic``: the default Cornell campaign (``gonio.campaign.cornell.run_cornell_campaign``:
+incidence plan, noise, fit and budget) on the realistic instrument (``cornell2005``, the
+default) beside the ideal one, in A B A B pairs in this process after one warm-up of each;
+prints each pair's wall times and the median ratio realistic / ideal (issue 18 asks <= 1.5).
 
 For each material: the in-process time of a full hemispherical campaign (θi = 10°…80°, 441
 positions per θi, ordered, noise on), the time per measurement, the cost of the cone
@@ -68,6 +74,22 @@ def bench(material: str, n: int) -> dict:
     }
 
 
+def side_by_side(material: str, pairs: int) -> dict:
+    """Wall time of the default campaign, realistic (A) and ideal (B), in A B pairs."""
+    from gonio.campaign.cornell import run_cornell_campaign
+
+    def wall(effects: str) -> float:
+        t0 = time.perf_counter()
+        run_cornell_campaign(material, effects=effects)
+        return time.perf_counter() - t0
+
+    wall("cornell2005"), wall("ideal")  # warm-up: imports, numba, caches
+    rows = [(wall("cornell2005"), wall("ideal")) for _ in range(pairs)]
+    ratios = [a / b for a, b in rows]
+    return {"material": material, "pairs_s": rows, "ratios": ratios,
+            "median_ratio": float(np.median(ratios))}  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -77,7 +99,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--quick", action="store_true", help="9 x 9 grid instead of 21 x 21")
     ap.add_argument("--json", default=None, help="write the results as JSON")
+    ap.add_argument("--realistic", action="store_true",
+                    help="default campaign, realistic vs ideal instrument, A B pairs")  # fmt: skip
+    ap.add_argument("--pairs", type=int, default=5)
     args = ap.parse_args(argv)
+    if args.realistic:
+        given = args.material != ap.get_default("material")
+        mats = args.material if given else ["garnet_red_paint"]
+        out = [side_by_side(m, args.pairs) for m in mats]
+        for r in out:
+            pairs = ", ".join(f"{a:.2f}/{b:.2f}" for a, b in r["pairs_s"])
+            print(f"{r['material']}: realistic/ideal s per pair {pairs}; "
+                  f"ratios {', '.join(f'{x:.3f}' for x in r['ratios'])}; "
+                  f"median {r['median_ratio']:.3f}")  # fmt: skip
+        if args.json:
+            atomic_write_bytes(args.json, json.dumps(out, indent=1).encode())
+        return 0
     rows = [bench(m, 9 if args.quick else 21) for m in args.material]
     hdr = (
         f"{'material':28s} {'geoms':>6s} {'campaign s':>10s} {'ms/meas':>8s} "

@@ -32,14 +32,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from gonio.simulator.effects import Distribution, EffectSpec, effect_rng, is_ideal
+from gonio.simulator.effects import Distribution, EffectSpec, is_ideal
 from gonio.simulator.effects import check_magnitudes as _check_table
+from gonio.simulator.effects import realise as _realise
 
 __all__ = [
     "EFFECTS",
     "PRESETS",
     "check_magnitudes",
     "is_ideal",
+    "is_preset",
     "lab_knowledge",
     "realise",
     "resolve_effects",
@@ -253,44 +255,40 @@ def check_magnitudes(m: Mapping[str, float]) -> None:
 
 
 def realise(preset: str | Mapping[str, Distribution], seed: int) -> dict[str, float]:
-    """The realised magnitudes of one physical instrument built to ``preset`` (each effect
-    from its own stream of ``seed``, clipped to its range; unnamed effects 0)."""
-    if isinstance(preset, str):
-        if preset not in PRESETS:
-            raise ValueError(f"preset {preset!r} is unknown; expected one of {', '.join(PRESETS)}")
-        dists: Mapping[str, Distribution] = PRESETS[preset]
-    elif isinstance(preset, Mapping):
-        dists = preset
-        for name, d in dists.items():
-            if name not in EFFECTS:
-                raise ValueError(
-                    f"effect {name!r} is unknown; expected some of {', '.join(sorted(EFFECTS))}"
-                )
-            if not isinstance(d, Distribution):
-                raise ValueError(f"preset entry {name!r} must be a Distribution, got {d!r}")
-    else:
-        raise ValueError(f"preset must be a name or a mapping of Distributions, got {preset!r}")
-    out = {}
-    for name, spec in EFFECTS.items():
-        d = dists.get(name)
-        out[name] = spec.clip(0.0 if d is None else d.draw(effect_rng(seed, "cornell", name)))
-    check_magnitudes(out)
-    return out
+    """The realised magnitudes of one physical instrument built to ``preset`` (a name of
+    :data:`PRESETS` or a mapping of Distributions; each effect from its own stream of
+    ``seed``, clipped to its range; unnamed effects 0): the framework's
+    :func:`gonio.simulator.effects.realise` with the Cornell table."""
+    return _realise(
+        preset, seed, table=EFFECTS, presets=PRESETS, stream="cornell", check=check_magnitudes
+    )
 
 
 def resolve_effects(
     effects: str | Mapping[str, float] | None, seed: int
 ) -> dict[str, float] | None:
-    """Magnitudes from a preset name (realised with ``seed``), a mapping (checked, missing
-    effects 0) or None (ideal). Returns None for the ideal instrument."""
+    """Magnitudes from a preset (a name or a mapping of Distributions, realised with
+    ``seed``), a mapping of magnitudes (checked, missing effects 0) or None (ideal). Returns
+    None for the ideal instrument."""
     if effects is None:
         return None
-    if isinstance(effects, str):
+    if is_preset(effects):
         m = realise(effects, seed)
     else:
         check_magnitudes(effects)
         m = {name: float(effects.get(name, 0.0)) for name in EFFECTS}
     return None if is_ideal(m) else m
+
+
+def is_preset(effects: object) -> bool:
+    """True for a preset name or a mapping of Distributions (a custom preset)."""
+    if isinstance(effects, str):
+        return True
+    return (
+        isinstance(effects, Mapping)
+        and len(effects) > 0
+        and all(isinstance(d, Distribution) for d in effects.values())
+    )
 
 
 def lab_knowledge(

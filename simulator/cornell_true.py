@@ -47,6 +47,7 @@ class TrueInstrument:
         self.true_angles = np.zeros(3)
         self.clock_s = 0.0
         self._pol_cache: dict[tuple, float] = {}
+        self._last_counts: tuple[tuple, NDArray] | None = None  # (read key, noise-free counts)
 
     # ------------------------------------------------------------------ motion
     def _fx_move(self, new: NDArray) -> None:

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -452,17 +452,23 @@ def check_magnitudes(m: Mapping[str, float], table: Mapping[str, EffectSpec] | N
             )
 
 
-def _resolve_preset(preset: str | Mapping[str, Distribution]) -> Mapping[str, Distribution]:
+def _resolve_preset(
+    preset: str | Mapping[str, Distribution],
+    presets: Mapping[str, Mapping[str, Distribution]] | None = None,
+    table: Mapping[str, EffectSpec] | None = None,
+) -> Mapping[str, Distribution]:
+    presets = PRESETS if presets is None else presets
+    known = EFFECTS if table is None else table
     if isinstance(preset, str):
-        if preset not in PRESETS:
-            raise ValueError(f"preset {preset!r} is unknown; expected one of {', '.join(PRESETS)}")
-        return PRESETS[preset]
+        if preset not in presets:
+            raise ValueError(f"preset {preset!r} is unknown; expected one of {', '.join(presets)}")
+        return presets[preset]
     if not isinstance(preset, Mapping):
         raise ValueError(f"preset must be a name or a mapping of Distributions, got {preset!r}")
     for name, d in preset.items():
-        if name not in EFFECTS:
+        if name not in known:
             raise ValueError(
-                f"effect {name!r} is unknown; expected some of {', '.join(sorted(EFFECTS))}"
+                f"effect {name!r} is unknown; expected some of {', '.join(sorted(known))}"
             )
         if not isinstance(d, Distribution):
             raise ValueError(f"preset entry {name!r} must be a Distribution, got {d!r}")
@@ -482,12 +488,23 @@ def effect_rng(seed: int, *key: str | int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(h,)))
 
 
-def realise(preset: str | Mapping[str, Distribution], seed: int) -> dict[str, float]:
+def realise(
+    preset: str | Mapping[str, Distribution],
+    seed: int,
+    *,
+    table: Mapping[str, EffectSpec] | None = None,
+    presets: Mapping[str, Mapping[str, Distribution]] | None = None,
+    stream: str = "effect",
+    check: Callable[[Mapping[str, float]], None] | None = None,
+) -> dict[str, float]:
     """The realised magnitudes of one physical instrument built to ``preset``.
 
-    Each effect is drawn from its own stream (:func:`effect_rng` of ``seed`` and its name)
-    and clipped to its valid range; effects the preset does not name are 0. Different seeds
-    are different instruments; the same seed is the same instrument.
+    Each effect is drawn from its own stream (:func:`effect_rng` of ``seed``, ``stream`` and
+    its name) and clipped to its valid range; effects the preset does not name are 0.
+    Different seeds are different instruments; the same seed is the same instrument.
+    ``table``, ``presets``, ``stream`` and ``check`` make it any instrument's (default this
+    module's LBL :data:`EFFECTS`, :data:`PRESETS`, stream ``"effect"`` and
+    :func:`check_magnitudes`; the Cornell instrument passes its own).
 
     Examples
     --------
@@ -496,13 +513,17 @@ def realise(preset: str | Mapping[str, Distribution], seed: int) -> dict[str, fl
     >>> realise("modern", 1) == realise("modern", 1)
     True
     """
-    dists = _resolve_preset(preset)
+    known = EFFECTS if table is None else table
+    dists = _resolve_preset(preset, presets, known)
     out: dict[str, float] = {}
-    for name, spec in EFFECTS.items():
+    for name, spec in known.items():
         d = dists.get(name)
-        v = 0.0 if d is None else d.draw(effect_rng(seed, "effect", name))
+        v = 0.0 if d is None else d.draw(effect_rng(seed, stream, name))
         out[name] = spec.clip(v)
-    check_magnitudes(out)
+    if check is None:
+        check_magnitudes(out, known)
+    else:
+        check(out)
     return out
 
 

@@ -733,6 +733,15 @@ class _Setup:
                 "noise": self.noise}  # fmt: skip
 
 
+def _effects_setting(effects: Any) -> Any:
+    """The ``effects`` argument as plan.json records it (a custom preset as its
+    distributions)."""
+    if isinstance(effects, str | None):
+        return effects
+    return {k: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
+            for k, v in effects.items()}  # fmt: skip
+
+
 def _prepare(
     material: str, plan: Any, *, noise: Any, seed: Any, out: Any, reference: str, config: Any,
     resolution_deg: float, max_geometries: int | None, plan_kw: dict | None,
@@ -745,7 +754,7 @@ def _prepare(
     from gonio import materials
     from gonio.campaign.drivers import eeprom_coeffs
     from gonio.simulator.cornell import CornellConfig
-    from gonio.simulator.cornell_effects import lab_knowledge, resolve_effects
+    from gonio.simulator.cornell_effects import is_preset, lab_knowledge, resolve_effects
 
     cfg = config or CornellConfig()
     # the spectrometer's calibration as its EEPROM stores it, on both paths
@@ -763,7 +772,7 @@ def _prepare(
     lab = cfg.lab_view()
     knowledge = {}
     if fx is not None:
-        knowledge = (lab_knowledge(effects) if isinstance(effects, str)
+        knowledge = (lab_knowledge(effects) if is_preset(effects)
                      else {k: (float(v), 0.0) for k, v in fx.items() if v})  # fmt: skip
     corr = _check_corrections(corrections)
     every = (40 if fx is not None else 0) if reference_every is None else reference_every
@@ -788,7 +797,7 @@ def _prepare(
         "resolution_deg": resolution_deg,
         "max_geometries": max_geometries,
         "through_drivers": bool(through_drivers),
-        "effects": effects if isinstance(effects, str | None) else dict(effects),
+        "effects": _effects_setting(effects),
         "instrument_seed": int(iseed),
         "reference_every": int(every),
         "corrections": corr,
@@ -880,21 +889,21 @@ def _apply_corrections(
 def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str, Any]]:
     """The plan measured by the simulator in this process; samples, reference, no integration
     times (they are estimated), extra summary fields."""
-    from gonio.simulator.cornell import CornellInstrument, simulate_campaign
+    from gonio.simulator.cornell import simulate_campaign
 
     stray = (
         _nominal(setup.knowledge, "stray_light_fraction") if setup.corrections.get("stray") else 0.0
     )
+    refs: list = []
     samples = simulate_campaign(
         setup.plan, setup.material, rng=setup.seed, noise=setup.noise,
         reference=setup.reference, config=setup.cfg, order=False,
         reference_every=setup.reference_every,
         drift_correction=bool(setup.corrections.get("drift", True)), stray_correction=stray,
+        references=refs,
     )  # fmt: skip
     samples.metadata.update(setup.meta)
-    # the same keyed noise: a fresh instrument calibrates to the very same reference
-    ref_obj = CornellInstrument(setup.material, config=setup.cfg, noise=setup.noise,
-                                rng=setup.seed).calibrate(setup.reference)  # fmt: skip
+    ref_obj = refs[0][1]  # the campaign's first reference (with the beam trap's stray light)
     extra = {"through_drivers": False, "n_geometries": len(setup.plan),
              "n_saturated": int(samples.metadata.get("n_saturated", 0))}  # fmt: skip
     for k in ("n_references", "reference_drift", "campaign_clock_h"):
