@@ -971,6 +971,7 @@ def simulate_campaign(
         "conv_skipped": inst.stats["conv_skipped"],
         "integration_s_median": float(np.median(t_int)) if len(p) else 0.0,
         "estimated_run_time_h": est["total_h"],
+        "estimated_run_time_u_h": est["total_u_h"],
     }  # (no wall-clock time: the samples of two identical runs are identical bytes)
     if reference_every:
         meta["n_references"] = len(refs)

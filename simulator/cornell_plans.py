@@ -24,8 +24,9 @@ References
 from __future__ import annotations
 
 import csv
+import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -64,6 +65,13 @@ class Timing:
     measured that sample with the incidence plan). So the paper's 11 h lies within the range
     for the samples it measured hemispherically; the gap for a given sample is set by the
     integration times, not by the stage speeds.
+
+    The estimate's own uncertainty (:func:`estimate_run_time`, ``total_u_h``) comes from
+    relative standard uncertainties of these assumptions: ``speed_u`` of the speeds and
+    accelerations (a stage's data sheet against its use under load: 20 %), ``overhead_u``
+    of the settling, preview, polariser and read-out times (30 %: none is published) and
+    ``integration_u`` of the integration times (30 %: they scale inversely with the
+    detector's sensitivity, itself an assumption).
     """
 
     speeds: tuple[float, float, float] = tuple(np.radians([5.0, 10.0, 10.0]))
@@ -73,6 +81,17 @@ class Timing:
     read_overhead_s: float = 0.15
     preview_s: float = 0.01
     default_integration_s: float = 1.0
+    speed_u: float = 0.2
+    overhead_u: float = 0.3
+    integration_u: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("speed_u", "overhead_u", "integration_u"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and 0 <= v < 1):
+                raise ValueError(
+                    f"Timing.{name} = {v!r}: expected a relative uncertainty in [0, 1)"
+                )
 
     def move_time(self, delta: NDArray) -> NDArray:
         """Trapezoidal-profile time of a move by ``delta`` (…, 3) rad; axes move together."""
@@ -344,7 +363,8 @@ def estimate_run_time(
                 f"got shape {t_int.shape}"
             )
     path = np.concatenate([np.asarray(start, float)[None], p.angles])
-    moves = timing.move_time(np.diff(path, axis=0))
+    steps = np.diff(path, axis=0)
+    moves = timing.move_time(steps)
     per = (
         timing.settle_s
         + timing.preview_s
@@ -353,12 +373,24 @@ def estimate_run_time(
         + 4.0 * (t_int + timing.read_overhead_s)
     )
     total = float(moves.sum() + per.sum())
+    integ = float(4.0 * t_int.sum())
+    fixed = float(per.sum()) - integ
+    # the estimate's uncertainty: each group of assumptions scaled by its relative
+    # uncertainty (the moves through the speeds and accelerations), in quadrature
+    f = 1.0 + timing.speed_u
+    faster = replace(timing, speeds=tuple(np.multiply(timing.speeds, f)),
+                     acceleration=tuple(np.multiply(timing.acceleration, f)))  # fmt: skip
+    du_move = float(moves.sum() - faster.move_time(steps).sum())
+    u = math.sqrt(
+        du_move**2 + (timing.overhead_u * fixed) ** 2 + (timing.integration_u * integ) ** 2
+    )
     return {
         "n_measurements": float(n),
         "move_s": float(moves.sum()),
-        "integration_s": float(4.0 * t_int.sum()),
-        "overhead_s": float(per.sum() - 4.0 * t_int.sum()),
+        "integration_s": integ,
+        "overhead_s": fixed,
         "total_s": total,
         "total_h": total / 3600.0,
+        "total_u_h": u / 3600.0,
         "per_measurement_s": total / max(n, 1),
     }

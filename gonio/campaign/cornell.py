@@ -968,6 +968,7 @@ def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, An
     if t_int is None:
         est = estimate_run_time(p, Timing(), None)
         est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
+        est["total_u_h"] = float(samples.metadata.get("estimated_run_time_u_h", est["total_u_h"]))
     else:
         est = estimate_run_time(p, Timing(), t_int)
         est_h = float(est["total_h"])
@@ -976,6 +977,7 @@ def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, An
         }
         extra["mean_integration_s"] = float(np.mean(t_int))
     extra["estimated_real_instrument_h"] = est_h
+    extra["estimated_real_instrument_u_h"] = float(est["total_u_h"])
     return extra
 
 
@@ -1022,7 +1024,8 @@ def summary_text(summary: dict[str, Any]) -> str:
     lines = [
         f"{summary['material']} (cornell, {how}): "
         f"{summary.get('n_geometries')} geometries, {summary['n_samples']} samples, "
-        f"est. real instrument {summary.get('estimated_real_instrument_h', float('nan')):.2f} h"
+        f"est. real instrument {summary.get('estimated_real_instrument_h', float('nan')):.2f}"
+        f" +- {summary.get('estimated_real_instrument_u_h', float('nan')):.2f} h"
     ]
     if summary.get("model"):
         fitp, rel, se = summary["fit"], summary["relative_error"], summary["stderr"]

@@ -117,18 +117,25 @@ def _patterns(
 ) -> dict[str, NDArray]:
     """The laboratory's model of each effect's change of the readings, at its uncertainty
     after correction: ``{effect: (G, nb)}`` (or a list of patterns to add in quadrature)."""
-    from gonio.campaign.cornell_lab import cone_response, footprint_fraction
-    from gonio.simulator.cornell import forward, inverse
+    out: dict[str, Any] = {}
+    out.update(_spectral_patterns(y, kref, knowledge, corr))
+    if lamp_u:
+        out["lamp_drift"] = lamp_u * y
+    out.update(_cone_patterns(model, wi, wo, y, cfg, knowledge, mirror_part))
+    out.update(_geometry_patterns(model, wi, wo, y.shape[1], cfg, knowledge))
+    out.update(_footprint_patterns(wi, wo, y, knowledge, corr))
+    return out
 
-    nb = y.shape[1]
+
+def _spectral_patterns(y: NDArray, kref: NDArray, knowledge: dict, corr: dict) -> dict:
+    """The spectrometer's effects: stray light, slit function, wavelength scale,
+    non-linearity (each at its uncertainty after correction)."""
     out: dict[str, Any] = {}
     yr = np.clip(y, 0, None) * kref[None, :]
     u = _u_after(knowledge, "stray_light_fraction", corr["stray"])
     if u:
         rel = yr.mean(1, keepdims=True) / np.where(yr > 0, yr, np.inf) - kref.mean() / kref
         out["stray_light_fraction"] = u * y * np.where(yr > 0, rel, 0.0)
-    if lamp_u:
-        out["lamp_drift"] = lamp_u * y
     d1 = np.gradient(y, 10.0, axis=1)
     u = _u_after(knowledge, "slit_fwhm_nm", corr["slit"])
     if u:
@@ -146,8 +153,19 @@ def _patterns(
     if u:
         xs = yr / np.maximum(yr.max(1, keepdims=True), 1e-300)
         out["nonlinearity"] = -u * 0.7 * y * (xs - kref / kref.max())
+    return out
+
+
+def _cone_patterns(
+    model: Any, wi: NDArray, wo: NDArray, y: NDArray, cfg: Any, knowledge: dict, mirror: bool
+) -> dict:
+    """The source's solid angle (the mirror part's top hat ρ / (Ω_s cos θi) scales as
+    1/Ω_s) and the cones' radiance profiles."""
+    from gonio.campaign.cornell_lab import cone_response
+
+    out: dict[str, Any] = {}
     u = _u_after(knowledge, "source_solid_angle_error", False)
-    if u and mirror_part:  # the mirror part's top hat rho / (Omega_s cos) scales as 1/Omega_s
+    if u and mirror:
         plain = type(model)(**{**model.params, "specular": False, "d_omega_i": None})
         out["source_solid_angle_error"] = -u * (
             cone_response(model, wi, wo, cfg) - cone_response(plain, wi, wo, cfg)
@@ -158,16 +176,37 @@ def _patterns(
         base = cone_response(model, wi, wo, cfg)
         rel = cone_response(model, wi, wo, cfg, taper=(ts, td)) / np.where(base > 0, base, 1) - 1
         out["cone_taper"] = y * rel
+    return out
+
+
+def _geometry_patterns(
+    model: Any, wi: NDArray, wo: NDArray, nb: int, cfg: Any, knowledge: dict
+) -> dict:
+    """The sample's tilt and wobble and the stages' backlash: the true directions differ
+    from the commanded ones the reduction uses. The reading is the BRDF at the true
+    directions times the true irradiance ``cos θi'`` over the nominal ``cos θi`` the
+    reduction divides by. A tilt of magnitude ``t`` at an unknown azimuth is two
+    independent tilts about x and y of ``t / √2`` each; the backlash a lag of half the band
+    on each axis."""
+    from gonio.simulator.cornell import forward, inverse
+
+    out: dict[str, Any] = {}
     f0 = _model_values(model, wi, wo, nb)
-    u = _u_after(knowledge, "sample_tilt_rad", False)
-    if u:
-        pats = []
-        for axis in (0, 1):
-            k = np.zeros(3)
-            k[axis] = 1.0
-            rot = _rotate(wi, k, u), _rotate(wo, k, u)
-            pats.append((_model_values(model, *rot, nb) - f0) / math.sqrt(2))
-        out["sample_tilt_rad"] = pats
+    cos0 = np.where(wi[:, 2] > 0, wi[:, 2], 1.0)
+
+    def change(wi2: NDArray, wo2: NDArray) -> NDArray:
+        irr = np.clip(wi2[:, 2], 0.0, None) / cos0
+        return _model_values(model, wi2, wo2, nb) * irr[:, None] - f0
+
+    for name in ("sample_tilt_rad", "sample_wobble_rad"):
+        u = _u_after(knowledge, name, False)
+        if u:
+            pats = []
+            for axis in (0, 1):
+                k = np.zeros(3)
+                k[axis] = 1.0
+                pats.append(change(_rotate(wi, k, u), _rotate(wo, k, u)) / math.sqrt(2))
+            out[name] = pats
     u = _u_after(knowledge, "stage_backlash_deg", False) / 2
     if u:
         r = inverse(wi, wo, cfg.kinematics)
@@ -175,25 +214,32 @@ def _patterns(
         for axis in range(3):
             a = np.array(r.angles, float)
             a[:, axis] += math.radians(u)
-            pats.append(_model_values(model, *forward(a, cfg.kinematics), nb) - f0)
+            pats.append(change(*forward(a, cfg.kinematics)))
         out["stage_backlash_deg"] = pats
-    if corr["footprint"] != "refuse" and knowledge.get("fov_diameter_mm", (0, 0))[0] > 0:
-        sizes = [
-            knowledge.get(k, (0.0, 0.0))[0]
-            for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")
-        ]
-        frac = footprint_fraction(wi, wo, *sizes)
-        if corr["footprint"] == "none":
-            out["footprint"] = y * (frac - 1)[:, None]
-        else:
-            pats = []
-            for j, name in enumerate(("beam_diameter_mm", "fov_diameter_mm")):
-                sz = list(sizes)
-                sz[j] += knowledge.get(name, (0.0, 0.0))[1]
-                f2 = footprint_fraction(wi, wo, *sz)
-                pats.append(y * ((f2 - frac) / np.where(frac > 0, frac, 1))[:, None])
-            out["footprint"] = pats
     return out
+
+
+def _footprint_patterns(wi: NDArray, wo: NDArray, y: NDArray, knowledge: dict, corr: dict) -> dict:
+    """The lit fraction of the field of view: uncorrected (``footprint="none"``) the whole
+    shortfall, divided by the nominal fraction the sizes' uncertainty; refused: nothing."""
+    from gonio.campaign.cornell_lab import footprint_fraction
+
+    if corr["footprint"] == "refuse" or knowledge.get("fov_diameter_mm", (0, 0))[0] <= 0:
+        return {}
+    sizes = [
+        knowledge.get(k, (0.0, 0.0))[0]
+        for k in ("beam_diameter_mm", "fov_diameter_mm", "sample_size_mm")
+    ]
+    frac = footprint_fraction(wi, wo, *sizes)
+    if corr["footprint"] == "none":
+        return {"footprint": y * (frac - 1)[:, None]}
+    pats = []
+    for j, name in enumerate(("beam_diameter_mm", "fov_diameter_mm")):
+        sz = list(sizes)
+        sz[j] += knowledge.get(name, (0.0, 0.0))[1]
+        f2 = footprint_fraction(wi, wo, *sz)
+        pats.append(y * ((f2 - frac) / np.where(frac > 0, frac, 1))[:, None])
+    return {"footprint": pats}
 
 
 def _rotate(w: NDArray, k: NDArray, ang: float) -> NDArray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from gonio.simulator.cornell_plans import read_plan_csv
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -32,3 +33,29 @@ def test_mutated_plans_give_a_plan_or_a_value_error(write_mutated, edits, raw):
     except ValueError:
         return
     assert np.isfinite(plan.angles).all()
+
+
+def test_run_time_estimate_carries_its_uncertainty():
+    from gonio.simulator.cornell_plans import (
+        Timing,
+        estimate_run_time,
+        hemispherical_plan,
+        order_plan,
+    )
+
+    p = order_plan(hemispherical_plan(n=5))
+    t_int = np.full(len(p.measurable()), 2.0)
+    e = estimate_run_time(p, Timing(), t_int)
+    # integration and overheads scale directly with their relative uncertainties; the moves
+    # by the change of the move time when the stages run 20 % faster
+    faster = Timing(speeds=tuple(1.2 * np.asarray(Timing().speeds)),
+                    acceleration=tuple(1.2 * np.asarray(Timing().acceleration)))  # fmt: skip
+    du_move = e["move_s"] - estimate_run_time(p, faster, t_int)["move_s"]
+    expect = np.sqrt(du_move**2 + (0.3 * e["overhead_s"]) ** 2 + (0.3 * e["integration_s"]) ** 2)
+    assert 0 < du_move < e["move_s"]
+    np.testing.assert_allclose(e["total_u_h"] * 3600.0, expect, rtol=1e-12)
+    assert 0.1 * e["total_h"] < e["total_u_h"] < 0.5 * e["total_h"]
+    exact = estimate_run_time(p, Timing(speed_u=0.0, overhead_u=0.0, integration_u=0.0), t_int)
+    assert exact["total_u_h"] == 0.0 and exact["total_h"] == e["total_h"]
+    with pytest.raises(ValueError, match=r"Timing\.speed_u = 1\.5"):
+        Timing(speed_u=1.5)
