@@ -536,6 +536,9 @@ class CornellInstrument(TrueInstrument):
         self._rule_s = _cone_rule(self._alpha_s, c.quad_rings, c.quad_phi)
         self._rule_d = _cone_rule(self._alpha_d, c.quad_rings, c.quad_phi)
         self.fx = c.effects  # None: the ideal instrument (every effect path skipped)
+        #: the lamp's clock advanced by each read and move this instrument sees (set for the
+        #: instrument behind the fake devices; in-process campaigns advance it per geometry)
+        self.event_clock = False
         if self.fx is not None:
             self._fx_setup()
 
@@ -744,7 +747,12 @@ class CornellInstrument(TrueInstrument):
         """
         c = self.config
         wl = self.pixel_wavelengths if wavelengths_nm is None else np.asarray(wavelengths_nm, float)
+        tick = self.fx is not None and self.event_clock
+        if tick:  # behind the fake devices: the lamp's clock runs with the reads and moves
+            self._fx_tick_move(positions)
         mean = self.expected_counts(positions, integration_time_s, wl)
+        if tick:
+            self._fx_tick_read(integration_time_s)
         if self.noise:
             key = (
                 *(round(float(positions[k]) * 1e4) + 2**40 for k in AXES),
@@ -837,26 +845,38 @@ class CornellInstrument(TrueInstrument):
             scale = np.full(wl.shape, 1.0 / c.omega_nominal)
         else:
             raise ValueError(f"reference mode = {mode!r}: expected 'standard' or 'direct'")
-        n_avg = max(1, int(c.n_reference_reads))
-        raws = self.measure_raw(target, n_reads=n_avg, first="s")  # ends on "p"
-        # stray light: beam trap at t_max, averaged like the reference (ends on "s", open)
-        traps: dict[tuple[str, bool], NDArray] = {}
-        for q, shutter in read_sequence("p") if stray is None else ():
-            kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
-            traps[(q, shutter)] = np.mean([self.read(c.t_max, **kw) for _ in range(n_avg)], 0)
-        stray_rate, rate = {}, {}
-        for q in ("s", "p"):
-            if stray is None:
-                stray_rate[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
-            else:
-                stray_rate[q] = stray.stray[q]
-            r = raws[q]
-            tr = c.filter_transmission if r["filter"] else 1.0
-            rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray_rate[q]
+        ref = reference_reads(self.read, c, mode, target, wl, scale, stray)
         self.angles = saved
         if fx_state is not None:
             self._fx_restore(fx_state)  # back where the stages were before the reference
-        return Reference(mode, wl, rate, stray_rate, scale, {"t": raws["s"]["t"]})
+        return ref
+
+
+def reference_reads(
+    read: Callable[..., NDArray], c: Any, mode: str, target: str, wl: NDArray, scale: NDArray,
+    stray: Reference | None = None,
+) -> Reference:  # fmt: skip
+    """The reads of a reference at the pose the stages are in, through ``read`` (the
+    simulator's or a spectrometer's through the drivers): the standard or direct beam
+    (``c.n_reference_reads`` averaged reads, :func:`measure_raw`), then the beam trap at
+    ``t_max`` for the stray light, averaged alike (taken from ``stray`` instead when given:
+    a re-measured reference does not repeat the beam trap)."""
+    n_avg = max(1, int(c.n_reference_reads))
+    raws = measure_raw(read, c, target, n_avg, "s")  # ends on "p"
+    traps: dict[tuple[str, bool], NDArray] = {}  # (ends on "s", open)
+    for q, shutter in read_sequence("p") if stray is None else ():
+        kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
+        traps[(q, shutter)] = np.mean([read(c.t_max, **kw) for _ in range(n_avg)], 0)
+    stray_rate, rate = {}, {}
+    for q in ("s", "p"):
+        if stray is None:
+            stray_rate[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
+        else:
+            stray_rate[q] = stray.stray[q]
+        r = raws[q]
+        tr = c.filter_transmission if r["filter"] else 1.0
+        rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray_rate[q]
+    return Reference(mode, wl, rate, stray_rate, scale, {"t": raws["s"]["t"]})
 
 
 def _wrap_deg(a: float) -> float:

@@ -48,6 +48,10 @@ class TrueInstrument:
         self.clock_s = 0.0
         self._pol_cache: dict[tuple, float] = {}
         self._last_counts: tuple[tuple, NDArray] | None = None  # (read key, noise-free counts)
+        self._last_pose: NDArray | None = None  # the event clock's last motor pose (deg)
+        from gonio.simulator.cornell_plans import Timing
+
+        self._timing = Timing()
 
     # ------------------------------------------------------------------ motion
     def _fx_move(self, new: NDArray) -> None:
@@ -204,6 +208,26 @@ class TrueInstrument:
         if m["nonlinearity"]:
             x = x * (1.0 - m["nonlinearity"] * x / (c.saturation_counts - c.bias_counts))
         return counts + x
+
+    def _fx_tick_move(self, positions: Mapping[str, float]) -> None:
+        """Event clock (``self.event_clock``, the instrument behind the fake devices): a
+        change of the motor positions since the last read costs the real instrument's move
+        and settling time (:class:`gonio.simulator.cornell_plans.Timing`)."""
+        from gonio.simulator.cornell import AXES
+
+        if not all(k in positions for k in AXES):
+            return  # expected_counts names the missing stage
+        tm = self._timing
+        pose = np.array([float(positions[k]) for k in AXES])
+        last = self._last_pose
+        if last is not None and np.any(pose != last):
+            move = float(tm.move_time(np.radians(pose - last)[None])[0])
+            self.clock_s += move + tm.settle_s
+        self._last_pose = pose
+
+    def _fx_tick_read(self, integration_s: float) -> None:
+        """Event clock: a read costs its integration time and the read-out overhead."""
+        self.clock_s += float(integration_s) + self._timing.read_overhead_s
 
     def advance_clock(self, seconds: float) -> None:
         """Campaign time passes (the lamp warms up and drifts)."""

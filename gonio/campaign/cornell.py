@@ -439,58 +439,97 @@ def fit_li_torrance(
     return res, info
 
 
-def _summarise(
-    material, res, info, samples, seed, noise, timings, extra, ref_err=None, offset_err=None
-) -> dict[str, Any]:
-    truth = info["truth_model"]
-    tp = truth.params
-    truth_flat: dict[str, float] = {}
-    for k in ("sigma", "tau"):
-        truth_flat[k] = float(tp[k])
+def _truth_flat(info: dict[str, Any]) -> dict[str, float]:
+    """The true σ, τ and every free k per band, flat (``k_dd[0]`` ...)."""
+    tp = info["truth_model"].params
+    out = {k: float(tp[k]) for k in ("sigma", "tau")}
     for k in info["free_k"]:
         v = np.broadcast_to(np.asarray(tp[k], float), (31,))
-        for b in range(31):
-            truth_flat[f"{k}[{b}]"] = float(v[b])
-    fitp = {k: float(v) for k, v in res.params.items()}
-    stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in res.stderr.items()}
-    ref_err = np.zeros(31) if ref_err is None else np.asarray(ref_err, float)
-    # a k of band b also carries the reference's per-band scale error (common to all samples)
-    stderr_total: dict[str, float | None] = {}
+        out.update({f"{k}[{b}]": float(v[b]) for b in range(31)})
+    return out
+
+
+def _stderr_with_reference(
+    stderr: dict[str, float | None], fitp: dict[str, float], ref_err: np.ndarray,
+    offset_err: dict[str, float] | None,
+) -> dict[str, float | None]:  # fmt: skip
+    """A k of band b also carries the reference's per-band scale error and the stray-light
+    estimate's offset (both common to all samples of the band)."""
+    out: dict[str, float | None] = {}
     for k, v in stderr.items():
         if v is not None and "[" in k:
             b = int(k.split("[")[1].rstrip("]"))
             off = (offset_err or {}).get(k, 0.0)
-            stderr_total[k] = float(math.hypot(v, abs(fitp[k]) * ref_err[b], off))
+            out[k] = float(math.hypot(v, abs(fitp[k]) * ref_err[b], off))
         else:
-            stderr_total[k] = v
+            out[k] = v
+    return out
+
+
+def _comparison(truth: dict, fitp: dict, res: Any, stderr_total: dict) -> tuple[dict, dict, dict]:
+    """Relative errors and whether the truth lies within 3 fit standard errors (``within_fit``)
+    and within 3 standard errors with the reference's (``within``)."""
     rel, within, within_fit = {}, {}, {}
-    for k, tv in truth_flat.items():
+    for k, tv in truth.items():
         if k in fitp and k in res.free:
             rel[k] = abs(fitp[k] - tv) / abs(tv) if tv else abs(fitp[k])
             s = res.stderr.get(k, float("nan"))
             within_fit[k] = bool(abs(fitp[k] - tv) <= 3 * s) if math.isfinite(s) else None
             st = stderr_total.get(k)
             within[k] = bool(abs(fitp[k] - tv) <= 3 * st) if st is not None else None
-    if "sigma" in fitp and "tau" in fitp:
-        r_true = truth_flat["sigma"] / truth_flat["tau"]
-        r_fit = fitp["sigma"] / fitp["tau"]
-        rel["sigma/tau"] = abs(r_fit - r_true) / r_true
-        fitp["sigma/tau"] = r_fit
-        truth_flat["sigma/tau"] = r_true
-        free = set(res.free)
-        st_t, st_s = stderr.get("tau"), stderr.get("sigma")
-        sr = None  # standard error of the ratio, where one of the two is held fixed
-        if "tau" in free and "sigma" not in free and st_t is not None:
-            sr = r_fit * st_t / fitp["tau"]
-        elif "sigma" in free and "tau" not in free and st_s is not None:
-            sr = st_s / fitp["tau"]
-        stderr["sigma/tau"] = sr
-        stderr_total["sigma/tau"] = sr
-        if sr is not None and sr > 0:
-            within["sigma/tau"] = bool(abs(r_fit - r_true) <= 3 * sr)
+    return rel, within, within_fit
+
+
+def _add_ratio(
+    truth: dict, fitp: dict, res: Any, stderr: dict, stderr_total: dict, rel: dict, within: dict
+) -> None:
+    """σ/τ (the identifiable combination of the rough samples) into the tables, with its
+    standard error where one of σ, τ is held fixed."""
+    if "sigma" not in fitp or "tau" not in fitp:
+        return
+    r_true = truth["sigma"] / truth["tau"]
+    r_fit = fitp["sigma"] / fitp["tau"]
+    rel["sigma/tau"] = abs(r_fit - r_true) / r_true
+    fitp["sigma/tau"] = r_fit
+    truth["sigma/tau"] = r_true
+    free = set(res.free)
+    st_t, st_s = stderr.get("tau"), stderr.get("sigma")
+    sr = None
+    if "tau" in free and "sigma" not in free and st_t is not None:
+        sr = r_fit * st_t / fitp["tau"]
+    elif "sigma" in free and "tau" not in free and st_s is not None:
+        sr = st_s / fitp["tau"]
+    stderr["sigma/tau"] = sr
+    stderr_total["sigma/tau"] = sr
+    if sr is not None and sr > 0:
+        within["sigma/tau"] = bool(abs(r_fit - r_true) <= 3 * sr)
+
+
+def _k_summary(rel: dict, within: dict, within_fit: dict) -> dict[str, Any]:
     krel = [rel[k] for k in rel if "[" in k]
     kwithin = [within[k] for k in within if "[" in k and within[k] is not None]
     kwithin_fit = [within_fit[k] for k in within_fit if "[" in k and within_fit[k] is not None]
+    return {
+        "n": len(krel),
+        "max_relative_error": max(krel) if krel else None,
+        "n_within_3_sigma": int(sum(kwithin)),
+        "n_within_3_fit_stderr": int(sum(kwithin_fit)),
+        "n_with_stderr": len(kwithin),
+    }
+
+
+def _summarise(
+    material, res, info, samples, seed, noise, timings, extra, ref_err=None, offset_err=None
+) -> dict[str, Any]:
+    """The summary of a fit: the truth beside the fit (:func:`_truth_flat`,
+    :func:`_comparison`, :func:`_add_ratio`, :func:`_k_summary`) and the fit's figures."""
+    truth_flat = _truth_flat(info)
+    fitp = {k: float(v) for k, v in res.params.items()}
+    stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in res.stderr.items()}
+    ref_err = np.zeros(31) if ref_err is None else np.asarray(ref_err, float)
+    stderr_total = _stderr_with_reference(stderr, fitp, ref_err, offset_err)
+    rel, within, within_fit = _comparison(truth_flat, fitp, res, stderr_total)
+    _add_ratio(truth_flat, fitp, res, stderr, stderr_total, rel, within)
     return {
         "material": material,
         "model": "li_torrance",
@@ -502,13 +541,7 @@ def _summarise(
         "reference_band_rel_error": [float(x) for x in ref_err],
         "relative_error": rel,
         "within_3_sigma": within,
-        "k_summary": {
-            "n": len(krel),
-            "max_relative_error": max(krel) if krel else None,
-            "n_within_3_sigma": int(sum(kwithin)),
-            "n_within_3_fit_stderr": int(sum(kwithin_fit)),
-            "n_with_stderr": len(kwithin),
-        },
+        "k_summary": _k_summary(rel, within, within_fit),
         "fit_mode": info["fit_mode"],
         "cone_corrections": info["cone_corrections"],
         "sigma_tau_history": info["history"],
@@ -609,7 +642,7 @@ def run_cornell_campaign(
         ``instrument_seed`` (default ``seed``), or a mapping of magnitudes, or None (ideal).
     reference_every : int, optional
         Re-measure the standard after every N geometries (default 40 for a non-ideal
-        instrument, 0 = once at the start). In-process only.
+        instrument, 0 = once at the start), in-process and through the drivers.
     corrections : dict, optional
         The laboratory's corrections, each ablatable (:data:`DEFAULT_CORRECTIONS`):
         ``footprint`` ``"refuse"`` (the plan drops geometries whose field of view leaves
@@ -702,10 +735,27 @@ def _stages(
                 "seed": setup.seed, "noise": setup.noise, **extra,
             }  # fmt: skip
     summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
+    if setup.out is not None and summary.get("budget"):
+        _draw_budget(setup, summary)
     if setup.out is not None:
         _write_json(setup.out / "summary.json", summary)
     summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
     return summary
+
+
+def _draw_budget(setup: _Setup, summary: dict[str, Any]) -> None:
+    """``plots/budget.png`` (:func:`gonio.campaign.report.draw_budget`, the LBL campaign's
+    figure) from the budget's figure view; listed in ``summary["files"]``."""
+    from gonio.campaign.cornell_budget import figure_view
+    from gonio.campaign.report import draw_budget
+
+    view = figure_view(summary["budget"], summary["fit"], setup.corrections)
+    if not view["params"]:
+        return
+    folder = setup.out / "plots"
+    folder.mkdir(exist_ok=True)
+    draw_budget("budget", view, folder, f"{setup.material} (cornell)")
+    summary["files"]["plots"] = ["plots/budget.png"]
 
 
 @dataclasses.dataclass
@@ -886,14 +936,31 @@ def _apply_corrections(
                                sigma=samples.sigma if sig is None else sig.reshape(-1))  # fmt: skip
 
 
+def _stray_correction(setup: _Setup) -> float:
+    """The stray-light fraction the laboratory removes (its data sheet's; 0 = off)."""
+    if not setup.corrections.get("stray"):
+        return 0.0
+    return _nominal(setup.knowledge, "stray_light_fraction")
+
+
+def _drift_summary(p: Any, res: dict) -> dict[str, Any]:
+    """``n_references`` and ``reference_drift`` (hours, mean rate / the first's) of a
+    campaign through the drivers, its references placed in time by the run-time estimate
+    (the laboratory's clock: geometries measured x the estimated time per geometry)."""
+    from gonio.simulator.cornell import _reference_drift
+    from gonio.simulator.cornell_plans import Timing, estimate_run_time
+
+    per_s = estimate_run_time(p, Timing(), res["t"])["per_measurement_s"]
+    refs = [(count * per_s, ref) for count, ref in res["references"]]
+    return {"n_references": len(refs), "reference_drift": _reference_drift(refs)}
+
+
 def _measure_in_process(setup: _Setup) -> tuple[BRDFSamples, Any, None, dict[str, Any]]:
     """The plan measured by the simulator in this process; samples, reference, no integration
     times (they are estimated), extra summary fields."""
     from gonio.simulator.cornell import simulate_campaign
 
-    stray = (
-        _nominal(setup.knowledge, "stray_light_fraction") if setup.corrections.get("stray") else 0.0
-    )
+    stray = _stray_correction(setup)
     refs: list = []
     samples = simulate_campaign(
         setup.plan, setup.material, rng=setup.seed, noise=setup.noise,
@@ -945,10 +1012,14 @@ def _measure_through_drivers(
         res = run_cornell_measurements(
             rig, np.degrees(p.angles), config=setup.lab, reference=setup.reference,
             checkpoint=ck, reference_path=(outp / "reference.npz") if outp is not None else None,
-            on_measurement=on_measurement,
+            on_measurement=on_measurement, reference_every=setup.reference_every,
+            drift_correction=bool(setup.corrections.get("drift", True)),
+            stray_correction=_stray_correction(setup),
         )  # fmt: skip
         extra["device_reads"] = rig.n_reads
         extra["device_moves"] = rig.n_moves
+    if setup.reference_every:
+        extra.update(_drift_summary(p, res))
     sig = res["sigma"] if setup.noise else np.full_like(res["sigma"], np.nan)
     samples = _samples_from(
         np.radians(res["positions_deg"]), res["value"], sig, setup.lab.kinematics, setup.meta

@@ -1,9 +1,12 @@
 """The uncertainty budget of a Cornell campaign, in the way of the GUM.
 
-For every fitted parameter: the statistical standard error of the fit, beside the
-contribution of each effect — its sensitivity times the standard uncertainty of the effect
-after the laboratory's correction — combined in quadrature (uncorrelated inputs) and
-expanded at k = 2 (JCGM 100:2008, §5.1.2, §6.2).
+For every fitted parameter: the statistical standard error of the fit from the detector
+noise (the covariance from the samples' own standard errors, not rescaled by chi2/dof: the
+misfit the instrument's effects cause belongs to their terms, and rescaling counted it
+twice — aluminized non-glare glass, chi2/dof 159 on the realistic instrument, a statistical
+term 12.6 times its noise), beside the contribution of each effect — its sensitivity
+times the standard uncertainty of the effect after the laboratory's correction — combined
+in quadrature (uncorrelated inputs) and expanded at k = 2 (JCGM 100:2008, §5.1.2, §6.2).
 
 Sensitivities are linearised (JCGM 100:2008 §5.1.3): the laboratory's own model of how an
 effect of unit size changes every reading (``δy``, from the fitted model and the reference —
@@ -12,7 +15,11 @@ never from the simulator's truth) is propagated through the fit's linear respons
 k's are its linear coefficients; σ, τ by central differences) and ``W`` the fit's weights.
 The uncertainty after correction: the effect's spread between instruments (what the data
 sheet or a characterisation leaves open) where the campaign corrects it; its whole
-magnitude where the correction is ablated.
+magnitude where the correction is ablated. Effects drawn afresh at every geometry (the
+stages' positioning noise) are propagated geometry by geometry
+(:func:`propagate_independent`); the sample's tilt and the stages' backlash change the
+irradiance too (``cos θi'`` against the nominal ``cos θi`` the reduction divides by), which
+at grazing incidence outweighs their change of the BRDF.
 
 The output has the shape the LBL campaign's budget will have (per parameter ``stat``,
 ``contributions``, ``combined``, ``U``); the two can share the propagation
@@ -36,7 +43,7 @@ from numpy.typing import NDArray
 
 from gonio.samples import BRDFSamples
 
-__all__ = ["combine", "cornell_budget", "propagate"]
+__all__ = ["combine", "cornell_budget", "propagate", "propagate_independent"]
 
 _K = ("k_dd", "k_udf", "k_uds", "k_fs")
 
@@ -47,6 +54,26 @@ def propagate(jac: NDArray, weights: NDArray, patterns: NDArray) -> NDArray:
     squares, JCGM 100:2008 §5.1.3 sensitivities)."""
     jw = jac * weights[:, None]
     return np.linalg.lstsq(jw, patterns * weights[:, None], rcond=None)[0]
+
+
+def propagate_independent(
+    jac: NDArray, weights: NDArray, patterns: dict[str, list[NDArray]], nb: int
+) -> dict[str, NDArray]:
+    """Variance ``(P,)`` of the fitted parameters from perturbations drawn independently at
+    every geometry (rows ``(G, nb)`` of each pattern; the bands of one geometry move
+    together): ``Σ_g (Σ_b S[:, g b] δy[g b])²`` with ``S = (Jᵀ W J)⁻¹ Jᵀ W`` the weighted
+    least-squares response (the patterns of one effect add)."""
+    if not patterns:
+        return {}
+    s = np.linalg.pinv(jac * weights[:, None]) * weights[None, :]  # (P, n)
+    out = {}
+    for name, pats in patterns.items():
+        var = np.zeros(s.shape[0])
+        for q in pats:
+            t = (s * np.nan_to_num(q).reshape(1, -1)).reshape(s.shape[0], -1, nb).sum(axis=2)
+            var += np.sum(t * t, axis=1)
+        out[name] = var
+    return out
 
 
 def combine(stat: float | None, contributions: dict[str, float], k: float = 2.0) -> dict[str, Any]:
@@ -219,6 +246,30 @@ def _geometry_patterns(
     return out
 
 
+def _independent_patterns(
+    model: Any, wi: NDArray, wo: NDArray, nb: int, cfg: Any, knowledge: dict
+) -> dict[str, list[NDArray]]:
+    """Effects drawn afresh at every geometry: the stages' positioning noise (each axis's
+    error at its RMS, independent from geometry to geometry). ``{effect: [(G, nb), ...]}``:
+    each pattern's rows are independent draws, not one common shift."""
+    from gonio.simulator.cornell import forward, inverse
+
+    u = _u_after(knowledge, "stage_noise_deg", False)
+    if not u:
+        return {}
+    f0 = _model_values(model, wi, wo, nb)
+    cos0 = np.where(wi[:, 2] > 0, wi[:, 2], 1.0)
+    r = inverse(wi, wo, cfg.kinematics)
+    pats = []
+    for axis in range(3):
+        a = np.array(r.angles, float)
+        a[:, axis] += math.radians(u)
+        wi2, wo2 = forward(a, cfg.kinematics)
+        irr = np.clip(wi2[:, 2], 0.0, None) / cos0
+        pats.append(_model_values(model, wi2, wo2, nb) * irr[:, None] - f0)
+    return {"stage_noise_deg": pats}
+
+
 def _footprint_patterns(wi: NDArray, wo: NDArray, y: NDArray, knowledge: dict, corr: dict) -> dict:
     """The lit fraction of the field of view: uncorrected (``footprint="none"``) the whole
     shortfall, divided by the nominal fraction the sizes' uncertainty; refused: nothing."""
@@ -310,21 +361,31 @@ def cornell_budget(
         for q in p if isinstance(p, list) else [p]:
             cols.append(np.nan_to_num(q).reshape(-1))
             names.append(name)
+    indep = _independent_patterns(model, wi, wo, nb, cfg, knowledge) if knowledge else {}
     contrib: dict[str, dict[str, float]] = {p: {} for p in free}
-    if cols:
+    if cols or indep:
         jac = _jacobian(model, free, wi, wo, nb)
-        dp = propagate(jac, w.reshape(-1), np.stack(cols, axis=1))
+        acc: list[dict[str, float]] = [{} for _ in free]
+        if cols:
+            dp = propagate(jac, w.reshape(-1), np.stack(cols, axis=1))
+            for i in range(len(free)):
+                for e, name in enumerate(names):
+                    acc[i][name] = acc[i].get(name, 0.0) + dp[i, e] ** 2
+        for name, var in propagate_independent(jac, w.reshape(-1), indep, nb).items():
+            names.append(name)
+            for i in range(len(free)):
+                acc[i][name] = acc[i].get(name, 0.0) + float(var[i])
         for i, p in enumerate(free):
-            acc: dict[str, float] = {}
-            for e, name in enumerate(names):
-                acc[name] = acc.get(name, 0.0) + dp[i, e] ** 2
-            contrib[p] = {n: math.sqrt(v) for n, v in acc.items()}
+            contrib[p] = {n: math.sqrt(v) for n, v in acc[i].items()}
     ref_rel = summary.get("reference_band_rel_error") or [0.0] * nb
     tot = summary.get("stderr_with_reference", {})
     params: dict[str, Any] = {}
     for p in free:
         c = dict(contrib[p])
         se = res.stderr.get(p)
+        # the statistical term: the detector noise alone (the fit's covariance without its
+        # chi2/dof scale; the misfit the effects cause is their own terms' business)
+        stat = None if se is None else se / math.sqrt(max(float(res.cov_scale), 1.0))
         if "[" in p:
             b = int(p.split("[")[1].rstrip("]"))
             c["reference_noise"] = abs(float(res.params[p])) * float(ref_rel[b])
@@ -332,7 +393,7 @@ def cornell_budget(
             if st is not None and se is not None and math.isfinite(se):
                 rest = st**2 - se**2 - c["reference_noise"] ** 2
                 c["stray_trap_offset"] = math.sqrt(max(rest, 0.0))
-        params[p] = combine(se, c, k)
+        params[p] = combine(stat, c, k)
     if "sigma/tau" in summary.get("fit", {}) and "tau" in params and "sigma" not in params:
         r, t = summary["fit"]["sigma/tau"], float(res.params["tau"])
         pt = params["tau"]
@@ -392,3 +453,51 @@ def budget_text(budget: dict[str, Any]) -> str:
     c = budget["coverage"]
     lines.append(f"  budget coverage: {c['n_within_U']}/{c['n']} parameters within U (k=2)")
     return "\n".join(lines)
+
+
+#: terms the laboratory's corrections address (drawn solid in the figure; the rest hatched)
+_CORRECTED = {"stray_light_fraction": "stray", "slit_fwhm_nm": "slit", "lamp_drift": "drift",
+              "footprint": "footprint"}  # fmt: skip
+
+
+def figure_view(budget: dict[str, Any], fit: dict[str, float], corrections: dict) -> dict:
+    """The budget in the shape :func:`gonio.plots.budget.plot_budget` draws: σ/τ, τ and σ
+    (where fitted) as they are, and each k component as the median over its bands of every
+    term's relative contribution (times the median |k|, so the panel reads in relative
+    terms)."""
+    params = budget["parameters"]
+    view: dict[str, Any] = {"params": {}, "statistical": {}, "terms": {}, "combined": {},
+                            "expanded": {}, "k": 2.0}  # fmt: skip
+    names = sorted({n for b in params.values() for n in b["contributions"]})
+
+    def put(label: str, value: float, stat: float, contrib: dict, uc: float, u: float) -> None:
+        view["params"][label] = value
+        view["statistical"][label] = stat
+        view["combined"][label] = uc
+        view["expanded"][label] = u
+        for n in names:
+            c = corrections.get(_CORRECTED.get(n, ""), False) not in (False, "none")
+            t = view["terms"].setdefault(n, {"contribution": {}, "corrected": c})
+            t["contribution"][label] = float(contrib.get(n, 0.0))
+
+    for p in ("sigma/tau", "tau", "sigma"):
+        if p in params and p in fit:
+            b = params[p]
+            put(p, fit[p], b["stat"], b["contributions"], b["combined"], b["U"])
+    families: dict[str, list[str]] = {}
+    for p in params:
+        if "[" in p and p in fit:
+            families.setdefault(p.split("[")[0], []).append(p)
+    for fam, ps in families.items():
+        ps = [p for p in ps if abs(fit[p]) > 0]
+        if not ps:
+            continue
+        scale = float(np.median([abs(fit[p]) for p in ps]))
+
+        def med(get: Any, ps: list[str] = ps, scale: float = scale) -> float:
+            return scale * float(np.median([get(params[p]) / abs(fit[p]) for p in ps]))
+
+        contrib = {n: med(lambda b, n=n: b["contributions"].get(n, 0.0)) for n in names}
+        put(f"{fam} (median of {len(ps)} bands)", scale, med(lambda b: b["stat"]), contrib,
+            med(lambda b: b["combined"]), med(lambda b: b["U"]))  # fmt: skip
+    return view

@@ -330,14 +330,10 @@ class _CornellProcedures:
 
         return measure_raw(self.rig.read, self.c, target, n_reads, first)
 
-    def calibrate(self, mode: str, wavelengths: NDArray) -> Any:
-        from gonio.simulator.cornell import (
-            Reference,
-            _net_rate,
-            effective_cos,
-            forward,
-            read_sequence,
-        )
+    def calibrate(self, mode: str, wavelengths: NDArray, stray: Any = None) -> Any:
+        """The reference at its pose (``gonio.simulator.cornell.reference_reads``; ``stray``:
+        a re-measured reference keeps the first one's beam-trap stray light)."""
+        from gonio.simulator.cornell import effective_cos, forward, reference_reads
         from gonio.simulator.spectra import spectralon_reflectance
 
         c = self.c
@@ -352,19 +348,7 @@ class _CornellProcedures:
             scale = np.full(wavelengths.shape, 1.0 / c.omega_nominal)
         else:
             raise ValueError(f"reference = {mode!r}: expected 'standard' or 'direct'")
-        n = max(1, int(c.n_reference_reads))
-        raws = self.measure_raw(target, n_reads=n, first="s")
-        traps: dict[tuple[str, bool], NDArray] = {}
-        for q, shutter in read_sequence("p"):
-            kw = dict(polarizer=q, target="beam_trap", shutter=shutter)
-            traps[(q, shutter)] = np.mean([self.rig.read(c.t_max, **kw) for _ in range(n)], 0)
-        stray, rate = {}, {}
-        for q in ("s", "p"):
-            stray[q] = _net_rate(traps[(q, True)], traps[(q, False)], c.t_max, 1.0, c)[0]
-            r = raws[q]
-            tr = c.filter_transmission if r["filter"] else 1.0
-            rate[q] = _net_rate(r["signal"], r["dark"], r["t"], tr, c)[0] - stray[q]
-        return Reference(mode, wavelengths, rate, stray, scale, {"t": raws["s"]["t"]})
+        return reference_reads(self.rig.read, c, mode, target, wavelengths, scale, stray)
 
 
 def _save_reference(path: Path, ref: Any, key: str) -> None:
@@ -412,89 +396,177 @@ def run_cornell_measurements(
     reference_path: str | Path | None = None,
     on_measurement: Callable[[int, int], None] | None = None,
     retries: int = 1,
+    reference_every: int = 0,
+    drift_correction: bool = True,
+    stray_correction: float = 0.0,
 ) -> dict[str, NDArray]:
     """Measure every geometry of ``angles_deg`` (N, 3 motor angles, degrees, in order).
 
     Calibrates first (or reloads the reference from ``reference_path``), then for each
     geometry not already in ``checkpoint``: move, read (preview, signal and dark per
     polarisation, the preview's polariser alternating by geometry index), reduce to 31
-    bands, record. A device error on a geometry (after the
-    drivers' own retries) is retried ``retries`` times from the move on; then it propagates
-    (the checkpoint is flushed first, so a later call resumes).
+    bands, record. A device error on a geometry (after the drivers' own retries) is retried
+    ``retries`` times from the move on; then it propagates (the checkpoint is flushed
+    first, so a later call resumes).
+
+    ``reference_every = N > 0``: the standard is measured again after every N geometries
+    and after the last (without the beam trap; each saved beside ``reference_path`` as
+    ``<stem>_<count>.npz``, reloaded on resume), and with ``drift_correction`` every
+    geometry is reduced against the references interpolated linearly in the measurement
+    sequence (the lamp's drift divided out; the records keep the raw spectra for that).
+    ``stray_correction``: the laboratory's uniform stray-light fraction
+    (:func:`gonio.simulator.cornell.reduce_measurement`).
 
     Returns arrays in plan order: ``value`` and ``sigma`` (N, 31), ``t`` (N,) integration
     times, ``filter`` (N,), ``saturated`` (N,), ``positions_deg`` (N, 3) read back from the
     axes, ``resumed`` (number of geometries taken from the checkpoint), ``reference`` (the
-    ``Reference`` used).
+    first ``Reference``), ``references`` (``[(count, Reference), ...]``, the first at 0).
     """
+    from gonio.simulator.cornell import CornellConfig
+
+    c = config or CornellConfig()
+    ang = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
+    n = len(ang)
+    every = int(reference_every)
+    if every != reference_every or every < 0:
+        raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")
+    key = checkpoint.key if checkpoint is not None else fingerprint(ang)
+    proc = _CornellProcedures(rig, c)
+    wl = np.asarray(rig.spectrometer.wavelengths(), dtype=np.float64)
+    refs = _References(proc, reference, wl, key, reference_path)
+    records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
+    resumed = len(records)
+    keep_raw = bool(every) and drift_correction
+    try:
+        for j in range(n):
+            if every and j and j % every == 0:
+                refs.at(j)  # the reference after the j-th geometry (measured or reloaded)
+            if j in records:
+                continue
+            rec = _measure_geometry(rig, proc, c, ang[j], j, refs.latest(), retries,
+                                    stray_correction, keep_raw)  # fmt: skip
+            records[j] = rec
+            if checkpoint is not None:
+                checkpoint.add(j, rec)
+            if on_measurement is not None:
+                on_measurement(j, n)
+        if every and n:
+            refs.at(n)
+    finally:
+        if checkpoint is not None:
+            checkpoint.flush()
+    if keep_raw:
+        _reduce_against_interpolated(records, refs.pairs(), c, stray_correction)
+    out = _stack_records(records, n)
+    out.update(resumed=np.array(resumed), reference=refs.first,
+               reference_t=np.array(float(refs.first.meta.get("t", np.nan))),
+               references=refs.pairs())  # fmt: skip
+    return out
+
+
+class _References:
+    """The references of a campaign through the drivers, by the number of geometries
+    measured before each (0: the first, with the beam trap), saved and reloaded."""
+
+    def __init__(self, proc: Any, mode: str, wl: NDArray, key: str, path: Any) -> None:
+        self.proc, self.mode, self.wl, self.key = proc, mode, wl, key
+        self.path = Path(path) if path is not None else None
+        self.by_count: dict[int, Any] = {}
+        first = _load_reference(self.path, key) if self.path is not None else None
+        if first is None:
+            first = proc.calibrate(mode, wl)
+            if self.path is not None:
+                _save_reference(self.path, first, key)
+        self.first = first
+        self.by_count[0] = first
+
+    def _file(self, count: int) -> Path | None:
+        if self.path is None:
+            return None
+        return self.path.with_name(f"{self.path.stem}_{count}{self.path.suffix}")
+
+    def at(self, count: int) -> Any:
+        """The reference after ``count`` geometries: reloaded if saved, else measured now."""
+        if count in self.by_count:
+            return self.by_count[count]
+        f = self._file(count)
+        ref = _load_reference(f, self.key) if f is not None else None
+        if ref is None:
+            ref = self.proc.calibrate(self.mode, self.wl, stray=self.first)
+            if f is not None:
+                _save_reference(f, ref, self.key)
+        self.by_count[count] = ref
+        return ref
+
+    def latest(self) -> Any:
+        return self.by_count[max(self.by_count)]
+
+    def pairs(self) -> list[tuple[float, Any]]:
+        return [(float(k), self.by_count[k]) for k in sorted(self.by_count)]
+
+
+def _measure_geometry(
+    rig: CornellRig, proc: Any, c: Any, ang: NDArray, j: int, ref: Any, retries: int,
+    stray: float, keep_raw: bool,
+) -> dict[str, Any]:  # fmt: skip
+    """Move to geometry ``j``, read it and reduce it against ``ref``: its record."""
     from gonio.drivers.errors import DeviceError
     from gonio.simulator.cornell import (
         BANDS_NM,
-        CornellConfig,
         effective_cos,
         first_polarizer,
         forward,
         reduce_measurement,
     )
 
-    c = config or CornellConfig()
-    ang = np.asarray(angles_deg, dtype=np.float64).reshape(-1, 3)
-    n = len(ang)
-    key = checkpoint.key if checkpoint is not None else fingerprint(ang)
-    proc = _CornellProcedures(rig, c)
-    wl = np.asarray(rig.spectrometer.wavelengths(), dtype=np.float64)
-    ref_path = Path(reference_path) if reference_path is not None else None
-    ref = _load_reference(ref_path, key) if ref_path is not None else None
-    if ref is None:
-        ref = proc.calibrate(reference, wl)
-        if ref_path is not None:
-            _save_reference(ref_path, ref, key)
-    resumed = len(checkpoint) if checkpoint is not None else 0
-    records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
-    try:
-        for j in range(n):
-            if j in records:
-                continue
-            for attempt in range(retries + 1):
-                try:
-                    pos = rig.move_motors(ang[j])
-                    raws = proc.measure_raw("sample", first=first_polarizer(j))
-                    break
-                except DeviceError:
-                    if attempt == retries:
-                        raise
-                    rig.forget_positions()
-            ci = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
-            v, s, sat = reduce_measurement(raws, ref, ci, c, BANDS_NM)
-            rec = {
-                "value": v,
-                "sigma": s,
-                "t": float(raws["s"]["t"]),
-                "filter": int(raws["s"]["filter"]),
-                "saturated": bool(sat),
-                "positions_deg": pos,
-            }
-            records[j] = rec
-            if checkpoint is not None:
-                checkpoint.add(j, rec)
-            if on_measurement is not None:
-                on_measurement(j, n)
-    finally:
-        if checkpoint is not None:
-            checkpoint.flush()
-    nb = len(BANDS_NM)
-    out = {
+    for attempt in range(retries + 1):
+        try:
+            pos = rig.move_motors(ang)
+            raws = proc.measure_raw("sample", first=first_polarizer(j))
+            break
+        except DeviceError:
+            if attempt == retries:
+                raise
+            rig.forget_positions()
+    ci = float(effective_cos(forward(np.radians(pos), c.kinematics)[0], c))
+    v, s, sat = reduce_measurement(raws, ref, ci, c, BANDS_NM, stray)
+    rec = {"value": v, "sigma": s, "t": float(raws["s"]["t"]),
+           "filter": int(raws["s"]["filter"]), "saturated": bool(sat), "positions_deg": pos,
+           "cos_i": ci}  # fmt: skip
+    if keep_raw:
+        for q in ("s", "p"):
+            rec[f"signal_{q}"] = raws[q]["signal"]
+            rec[f"dark_{q}"] = raws[q]["dark"]
+    return rec
+
+
+def _reduce_against_interpolated(
+    records: dict[int, dict[str, Any]], refs: list, c: Any, stray: float
+) -> None:
+    """Reduce each geometry again against the references interpolated at its place in the
+    sequence (geometry ``j`` ends after ``j + 1`` geometries)."""
+    from gonio.simulator.cornell import BANDS_NM, _interpolated_reference, reduce_measurement
+
+    for j, rec in records.items():
+        raws = {q: {"signal": rec[f"signal_{q}"], "dark": rec[f"dark_{q}"],
+                    "t": float(rec["t"]), "filter": int(rec["filter"])}
+                for q in ("s", "p")}  # fmt: skip
+        ref = _interpolated_reference(refs, float(j + 1))
+        rec["value"], rec["sigma"], _sat = reduce_measurement(
+            raws, ref, float(rec["cos_i"]), c, BANDS_NM, stray
+        )
+
+
+def _stack_records(records: dict[int, dict[str, Any]], n: int) -> dict[str, NDArray]:
+    nb = len(records[0]["value"]) if n else 31
+    return {
         "value": np.array([records[j]["value"] for j in range(n)]).reshape(n, nb),
         "sigma": np.array([records[j]["sigma"] for j in range(n)]).reshape(n, nb),
         "t": np.array([float(records[j]["t"]) for j in range(n)]),
         "filter": np.array([int(records[j]["filter"]) for j in range(n)]),
         "saturated": np.array([bool(records[j]["saturated"]) for j in range(n)]),
         "positions_deg": np.array([records[j]["positions_deg"] for j in range(n)]).reshape(n, 3),
-        "resumed": np.array(resumed),
-        "reference_t": np.array(float(ref.meta.get("t", np.nan))),
-        "reference": ref,
     }
-    return out
 
 
 # ----------------------------------------------------------------------------- LBL through drivers
@@ -644,14 +716,21 @@ def cornell_fake_bench(
     """The simulated bench behind the Cornell fakes: ``(bench, instrument)``.
 
     All seven stages of ``gonio.simulator.bench`` (the motors ``arm``, ``turntable``,
-    ``tilt``; the accessories ``polarizer``, ``target``, ``filter``, ``shutter``) without
-    backlash or positioning noise, a 1024-pixel spectrometer with the wavelength
-    coefficients its EEPROM can hold (:func:`eeprom_coeffs`), rendering
-    ``CornellInstrument(material, config, noise, rng=seed).spectrum_render`` through the
-    accessory stations. ``material``: a preset name, a BRDF, or ``None`` (Lambertian).
-    With the same ``seed`` a campaign on this bench reads the same keyed noise as
-    :func:`gonio.simulator.cornell.simulate_campaign` in-process. ``prime`` (N, 3 motor
-    angles, radians) precomputes the simulator's cone-averaged BRDF there (speed only).
+    ``tilt``; the accessories ``polarizer``, ``target``, ``filter``, ``shutter``), a
+    1024-pixel spectrometer with the wavelength coefficients its EEPROM can hold
+    (:func:`eeprom_coeffs`), rendering ``CornellInstrument(material, config, noise,
+    rng=seed).spectrum_render`` through the accessory stations. ``material``: a preset
+    name, a BRDF, or ``None`` (Lambertian). ``prime`` (N, 3 motor angles, radians)
+    precomputes the simulator's cone-averaged BRDF there (speed only).
+
+    The ideal instrument (``config.effects`` None): no backlash or positioning noise, and
+    with the same ``seed`` a campaign on this bench reads the same keyed noise as
+    :func:`gonio.simulator.cornell.simulate_campaign` in-process. A realistic one: the
+    motor stages get the realised ``stage_backlash_deg`` and ``stage_noise_deg`` (the
+    bench's :class:`~gonio.simulator.bench.Stage` physics, drawn from the instrument seed),
+    so the spectrometer reads at the true (load) positions while the controllers report
+    their encoders; the lamp's clock runs with the reads and moves the instrument sees
+    (``CornellInstrument.event_clock``).
     """
     from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
     from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
@@ -667,9 +746,20 @@ def cornell_fake_bench(
 
         sample = brdf.create("lambert")
     inst = CornellInstrument(sample, config=cfg, noise=noise, rng=int(seed))
-    if prime is not None:
+    fx = inst.fx or {}
+    moving = {"backlash": float(fx.get("stage_backlash_deg", 0.0)),
+              "noise": float(fx.get("stage_noise_deg", 0.0))}  # fmt: skip
+    if prime is not None and not any(moving.values()):  # (true poses unknown beforehand)
         inst.prime(np.asarray(prime, dtype=np.float64).reshape(-1, 3))
-    stages = [Stage(name, **kw) for name, kw in stage_table["cornell"]]
+    stages = []
+    for name, kw in stage_table["cornell"]:
+        if name in CORNELL_MOTORS and any(moving.values()):
+            from gonio.simulator.effects import effect_rng
+
+            g = effect_rng(int(cfg.instrument_seed), "cornell", "bench", name)
+            kw = {**kw, **moving, "rng": int(g.integers(2**63 - 1))}
+        stages.append(Stage(name, **kw))
+    inst.event_clock = inst.fx is not None
     bench = Bench(
         stages,
         time_scale=time_scale,
