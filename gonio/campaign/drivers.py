@@ -437,26 +437,32 @@ def run_cornell_measurements(
     records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
     resumed = len(records)
     keep_raw = bool(every) and drift_correction
+    # a resumed run is a new session of the instrument (the lamp lit again): its geometries
+    # are reduced against its own references, the first measured where it starts
+    session = 1 + max((int(r.get("session", 0)) for r in records.values()), default=-1)
+    start = min((j for j in range(n) if j not in records), default=n)
     try:
-        for j in range(n):
-            if every and j and j % every == 0:
-                refs.at(j)  # the reference after the j-th geometry (measured or reloaded)
+        for j in range(start, n):
             if j in records:
                 continue
-            rec = _measure_geometry(rig, proc, c, ang[j], j, refs.latest(), retries,
+            if every and ((j == start and session > 0) or (j and j % every == 0)):
+                refs.at(j, session)  # measured, or reloaded when saved before a kill
+            rec = _measure_geometry(rig, proc, c, ang[j], j, refs.latest(session), retries,
                                     stray_correction, keep_raw)  # fmt: skip
+            if every:
+                rec["session"] = session
             records[j] = rec
             if checkpoint is not None:
                 checkpoint.add(j, rec)
             if on_measurement is not None:
                 on_measurement(j, n)
-        if every and n:
-            refs.at(n)
+        if every and start < n:
+            refs.at(n, session)
     finally:
         if checkpoint is not None:
             checkpoint.flush()
     if keep_raw:
-        _reduce_against_interpolated(records, refs.pairs(), c, stray_correction)
+        _reduce_against_interpolated(records, refs, c, stray_correction)
     out = _stack_records(records, n)
     out.update(resumed=np.array(resumed), reference=refs.first,
                reference_t=np.array(float(refs.first.meta.get("t", np.nan))),
@@ -465,44 +471,67 @@ def run_cornell_measurements(
 
 
 class _References:
-    """The references of a campaign through the drivers, by the number of geometries
-    measured before each (0: the first, with the beam trap), saved and reloaded."""
+    """The references of a campaign through the drivers, by session (a resumed run is a new
+    one) and the number of geometries measured before each (session 0, count 0: the first,
+    with the beam trap), saved beside ``path`` and reloaded."""
 
     def __init__(self, proc: Any, mode: str, wl: NDArray, key: str, path: Any) -> None:
         self.proc, self.mode, self.wl, self.key = proc, mode, wl, key
         self.path = Path(path) if path is not None else None
-        self.by_count: dict[int, Any] = {}
+        self.by: dict[tuple[int, int], Any] = {}
         first = _load_reference(self.path, key) if self.path is not None else None
         if first is None:
             first = proc.calibrate(mode, wl)
             if self.path is not None:
                 _save_reference(self.path, first, key)
         self.first = first
-        self.by_count[0] = first
+        self.by[(0, 0)] = first
 
-    def _file(self, count: int) -> Path | None:
+    def _file(self, session: int, count: int) -> Path | None:
         if self.path is None:
             return None
-        return self.path.with_name(f"{self.path.stem}_{count}{self.path.suffix}")
+        return self.path.with_name(f"{self.path.stem}_{session}_{count}{self.path.suffix}")
 
-    def at(self, count: int) -> Any:
-        """The reference after ``count`` geometries: reloaded if saved, else measured now."""
-        if count in self.by_count:
-            return self.by_count[count]
-        f = self._file(count)
-        ref = _load_reference(f, self.key) if f is not None else None
+    def load(self, session: int, count: int) -> Any:
+        """A saved reference of an earlier session (None if it was never measured)."""
+        if (session, count) not in self.by:
+            f = self._file(session, count)
+            ref = _load_reference(f, self.key) if f is not None else None
+            if ref is None:
+                return None
+            self.by[(session, count)] = ref
+        return self.by[(session, count)]
+
+    def at(self, count: int, session: int) -> Any:
+        """The reference after ``count`` geometries in ``session``: reloaded if saved, else
+        measured now (without the beam trap: the first's stray light)."""
+        ref = self.load(session, count)
         if ref is None:
             ref = self.proc.calibrate(self.mode, self.wl, stray=self.first)
+            f = self._file(session, count)
             if f is not None:
                 _save_reference(f, ref, self.key)
-        self.by_count[count] = ref
+            self.by[(session, count)] = ref
         return ref
 
-    def latest(self) -> Any:
-        return self.by_count[max(self.by_count)]
+    def session(self, session: int) -> list[tuple[float, Any]]:
+        """``[(count, Reference), ...]`` of one session: those in memory and those an
+        earlier run of it saved."""
+        if self.path is not None:
+            f = self.path
+            for g in f.parent.glob(f"{f.stem}_{session}_*{f.suffix}"):
+                tail = g.stem.rsplit("_", 1)[1]
+                if tail.isdigit():
+                    self.load(session, int(tail))
+        return sorted((float(c), r) for (s, c), r in self.by.items() if s == session)
+
+    def latest(self, session: int) -> Any:
+        mine = [(c, r) for (s, c), r in self.by.items() if s == session]
+        return max(mine, key=lambda cr: cr[0])[1] if mine else self.first
 
     def pairs(self) -> list[tuple[float, Any]]:
-        return [(float(k), self.by_count[k]) for k in sorted(self.by_count)]
+        """Every reference as ``(count, Reference)`` in the order measured."""
+        return [(float(c), self.by[(s, c)]) for s, c in sorted(self.by)]
 
 
 def _measure_geometry(
@@ -541,17 +570,22 @@ def _measure_geometry(
 
 
 def _reduce_against_interpolated(
-    records: dict[int, dict[str, Any]], refs: list, c: Any, stray: float
+    records: dict[int, dict[str, Any]], refs: _References, c: Any, stray: float
 ) -> None:
-    """Reduce each geometry again against the references interpolated at its place in the
-    sequence (geometry ``j`` ends after ``j + 1`` geometries)."""
+    """Reduce each geometry again against its session's references interpolated at its
+    place in the sequence (geometry ``j`` ends after ``j + 1`` geometries)."""
     from gonio.simulator.cornell import BANDS_NM, _interpolated_reference, reduce_measurement
 
+    by_session: dict[int, list] = {}
     for j, rec in records.items():
+        s = int(rec.get("session", 0))
+        if s not in by_session:
+            by_session[s] = refs.session(s)
+        pairs = by_session[s]
         raws = {q: {"signal": rec[f"signal_{q}"], "dark": rec[f"dark_{q}"],
                     "t": float(rec["t"]), "filter": int(rec["filter"])}
                 for q in ("s", "p")}  # fmt: skip
-        ref = _interpolated_reference(refs, float(j + 1))
+        ref = pairs[0][1] if len(pairs) == 1 else _interpolated_reference(pairs, float(j + 1))
         rec["value"], rec["sigma"], _sat = reduce_measurement(
             raws, ref, float(rec["cos_i"]), c, BANDS_NM, stray
         )
@@ -772,6 +806,42 @@ def cornell_fake_bench(
     return bench, inst
 
 
+def _serve_controllers(
+    bench: Any, groups: Sequence[Sequence[str]], servers: list, ctls: list, *,
+    faults: Sequence[Any] = (), timeout: float = 2.0,
+) -> None:  # fmt: skip
+    """Start a fake ESP300 on ``bench`` for each group of stage names (axes 1, 2, ... in
+    order; ``faults[k]`` for the k-th, default none) and open it with the real driver,
+    enabled; appended to ``servers`` and ``ctls`` as they come (so a failure half way
+    leaves :func:`_close_fakes` everything to close)."""
+    from gonio.drivers.esp300 import ESP300
+    from gonio.drivers.fake.esp300 import FakeESP300Server
+    from gonio.drivers.fake.faults import Faults
+
+    for k, g in enumerate(groups):
+        f = faults[k] if k < len(faults) and faults[k] is not None else Faults()
+        srv = FakeESP300Server(bench, axes=list(g), faults=f).start()
+        servers.append(srv)
+        ctl = ESP300.open(srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=timeout)
+        ctls.append(ctl)
+        ctl.enable()
+
+
+def _close_fakes(dev: Any, ctls: Sequence[Any], servers: Sequence[Any], usb: str) -> None:
+    """Close the USB device and the controllers, stop the fake servers, remove the fake USB
+    bus (each step whatever the others did)."""
+    from gonio.drivers.fake import usb as fakeusb
+
+    for x in (dev, *ctls):
+        if x is not None:
+            with contextlib.suppress(Exception):
+                x.close()
+    for srv in servers:
+        with contextlib.suppress(Exception):
+            srv.stop()
+    fakeusb.uninstall(usb)
+
+
 @contextlib.contextmanager
 def fake_cornell_rig(
     material: Any = "garnet_red_paint",
@@ -795,10 +865,7 @@ def fake_cornell_rig(
     timeout (s). ``parts``: ``bench``, ``servers``, ``usb`` (backend name),
     ``instrument`` (the simulator behind the spectrometer), ``controllers``.
     """
-    from gonio.drivers.esp300 import ESP300
     from gonio.drivers.fake import usb as fakeusb
-    from gonio.drivers.fake.esp300 import FakeESP300Server
-    from gonio.drivers.fake.faults import Faults
     from gonio.drivers.usb2000 import USB2000Plus
 
     bench, inst = cornell_fake_bench(
@@ -812,15 +879,9 @@ def fake_cornell_rig(
     try:
         if "usb2000plus" in faults:
             fakeusb.devices(name)["usb2000plus"].faults = faults["usb2000plus"]
-        for k, (_role, g) in enumerate(CONTROLLER_GROUPS["cornell"]):
-            f = faults.get("esp300") if k == 0 else None
-            srv = FakeESP300Server(bench, axes=list(g), faults=f or Faults()).start()
-            servers.append(srv)
-            ctl = ESP300.open(
-                srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=device_timeout
-            )
-            ctl.enable()
-            ctls.append(ctl)
+        groups = [g for _role, g in CONTROLLER_GROUPS["cornell"]]
+        _serve_controllers(bench, groups, servers, ctls, faults=[faults.get("esp300")],
+                           timeout=device_timeout)  # fmt: skip
         spec = USB2000Plus.open(name, n_pixels=None, timeout=max(device_timeout, 0.5))
         axes: dict[str, Axis] = {}
         for ctl in ctls:
@@ -837,16 +898,7 @@ def fake_cornell_rig(
             },
         )
     finally:
-        if spec is not None:
-            with contextlib.suppress(Exception):
-                spec.close()
-        for ctl in ctls:
-            with contextlib.suppress(Exception):
-                ctl.close()
-        for srv in servers:
-            with contextlib.suppress(Exception):
-                srv.stop()
-        fakeusb.uninstall(name)
+        _close_fakes(spec, ctls, servers, name)
 
 
 @contextlib.contextmanager
@@ -910,13 +962,7 @@ def open_served_rig(
             rig = {"axes": axes, "camera": dev}
         yield rig, {"controllers": ctls, "usb": name}
     finally:
-        if dev is not None:
-            with contextlib.suppress(Exception):
-                dev.close()
-        for ctl in ctls:
-            with contextlib.suppress(Exception):
-                ctl.close()
-        fakeusb.uninstall(name)
+        _close_fakes(dev, ctls, (), name)
 
 
 def lbl_description(inst: Any) -> dict[str, Any]:
@@ -961,9 +1007,7 @@ def fake_lbl_rig(
     and ``instrument_seed``: the simulated instrument's imperfections
     (:class:`gonio.simulator.LBLInstrument`; default none)."""
     from gonio import materials
-    from gonio.drivers.esp300 import ESP300
     from gonio.drivers.fake import usb as fakeusb
-    from gonio.drivers.fake.esp300 import FakeESP300Server
     from gonio.drivers.ptp import PTPCamera
     from gonio.simulator import LBLInstrument
     from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
@@ -989,12 +1033,8 @@ def fake_lbl_rig(
     servers, ctls = [], []
     cam = None
     try:
-        for g in (("source", "sample", "tilt"), ("changer",)):
-            srv = FakeESP300Server(bench, axes=list(g)).start()
-            servers.append(srv)
-            ctl = ESP300.open(srv.port, axes={n: i + 1 for i, n in enumerate(g)}, timeout=2.0)
-            ctl.enable()
-            ctls.append(ctl)
+        groups = [g for _role, g in CONTROLLER_GROUPS["lbl"]]
+        _serve_controllers(bench, groups, servers, ctls)
         cam = PTPCamera.open(name)
         mc: MotionController = ctls[0]
         dev = LBLDriverInstrument(
@@ -1008,13 +1048,4 @@ def fake_lbl_rig(
         )
         yield dev, {"bench": bench, "servers": servers, "usb": name, "instrument": inst}
     finally:
-        if cam is not None:
-            with contextlib.suppress(Exception):
-                cam.close()
-        for ctl in ctls:
-            with contextlib.suppress(Exception):
-                ctl.close()
-        for srv in servers:
-            with contextlib.suppress(Exception):
-                srv.stop()
-        fakeusb.uninstall(name)
+        _close_fakes(cam, ctls, servers, name)

@@ -14,6 +14,9 @@ from gonio.campaign.cornell import run_cornell_campaign
 from gonio.campaign.drivers import Checkpoint, fake_cornell_rig
 
 SMALL = dict(plan="incidence", plan_kw={"theta_i_deg": (45.0,)}, max_geometries=10, fit=False)
+# resumed runs identical to uninterrupted ones: the ideal instrument (a realistic one's lamp
+# is lit again and its stages start afresh: test_realistic_campaign_resumes_in_a_new_session)
+IDEAL = dict(SMALL, effects=None)
 
 
 class _Kill(Exception):
@@ -38,7 +41,7 @@ def test_checkpoint_roundtrip_and_guards(tmp_path):
 
 
 def test_killed_campaign_resumes_without_lost_or_duplicated_samples(tmp_path):
-    ref = run_cornell_campaign("laser_paper", seed=2, through_drivers=True, **SMALL)
+    ref = run_cornell_campaign("laser_paper", seed=2, through_drivers=True, **IDEAL)
 
     def kill_at_6(j, n):
         if j == 5:
@@ -47,12 +50,12 @@ def test_killed_campaign_resumes_without_lost_or_duplicated_samples(tmp_path):
     with pytest.raises(_Kill):
         run_cornell_campaign(
             "laser_paper", seed=2, through_drivers=True, out=tmp_path, checkpoint_every=1000,
-            on_measurement=kill_at_6, **SMALL,
+            on_measurement=kill_at_6, **IDEAL,
         )  # fmt: skip
     ck = np.load(tmp_path / "checkpoint.npz")
     assert ck["index"].tolist() == [0, 1, 2, 3, 4, 5]  # flushed on the way out
     s = run_cornell_campaign(
-        "laser_paper", seed=2, through_drivers=True, out=tmp_path, resume=True, **SMALL
+        "laser_paper", seed=2, through_drivers=True, out=tmp_path, resume=True, **IDEAL
     )
     assert s["resumed_geometries"] == 6
     a, b = ref["_samples"], s["_samples"]
@@ -66,7 +69,7 @@ def test_killed_campaign_resumes_without_lost_or_duplicated_samples(tmp_path):
 def test_injected_disconnects_then_resume(tmp_path):
     """USB unplugs mid-campaign: the driver reconnects; a fault it cannot ride out stops
     the run with the checkpoint on disk, and the resumed run completes it."""
-    ref = run_cornell_campaign("garnet_red_paint", seed=4, through_drivers=True, **SMALL)
+    ref = run_cornell_campaign("garnet_red_paint", seed=4, through_drivers=True, **IDEAL)
     usb_faults = Faults()
     esp_faults = Faults()
 
@@ -81,13 +84,13 @@ def test_injected_disconnects_then_resume(tmp_path):
         run_cornell_campaign(
             "garnet_red_paint", seed=4, through_drivers=True, out=tmp_path, on_measurement=inject,
             faults={"usb2000plus": usb_faults, "esp300": esp_faults}, checkpoint_every=1,
-            device_timeout=0.3, **SMALL,
+            device_timeout=0.3, **IDEAL,
         )  # fmt: skip
     assert any("disconnect" in x for x in usb_faults.log)
     done = np.load(tmp_path / "checkpoint.npz")["index"].tolist()
     assert done == list(range(7))
     s = run_cornell_campaign(
-        "garnet_red_paint", seed=4, through_drivers=True, out=tmp_path, resume=True, **SMALL
+        "garnet_red_paint", seed=4, through_drivers=True, out=tmp_path, resume=True, **IDEAL
     )
     a, b = ref["_samples"], s["_samples"]
     assert s["resumed_geometries"] == 7 and len(b) == len(a)
@@ -98,6 +101,61 @@ def test_injected_disconnects_then_resume(tmp_path):
     np.testing.assert_allclose(va[7:], vb[7:], rtol=1e-12, atol=1e-15)
     rel = np.abs(va - vb) / np.maximum(np.abs(va), 1e-12)
     assert np.median(rel[va > 0.05 * va.max()]) < 0.05
+
+
+def test_realistic_campaign_resumes_in_a_new_session(tmp_path):
+    """The realistic instrument through the fakes: stages with backlash and noise (the
+    spectrometer reads at the load positions, the controllers report their encoders), the
+    standard re-measured every 4 geometries; killed after 6 geometries, the resumed run
+    measures a reference where it starts and completes without losing or repeating one."""
+    kw = dict(SMALL, reference_every=4, seed=3)
+    full = run_cornell_campaign("laser_paper", through_drivers=True, **kw)
+    assert full["n_references"] == 4  # at 0, 4, 8 and after the 10th
+
+    def kill_at_6(j, n):
+        if j == 5:
+            raise _Kill
+
+    with pytest.raises(_Kill):
+        run_cornell_campaign("laser_paper", through_drivers=True, out=tmp_path,
+                             checkpoint_every=1000, on_measurement=kill_at_6, **kw)  # fmt: skip
+    assert (tmp_path / "reference.npz").is_file() and (tmp_path / "reference_0_4.npz").is_file()
+    s = run_cornell_campaign("laser_paper", through_drivers=True, out=tmp_path, resume=True, **kw)
+    assert s["resumed_geometries"] == 6
+    assert sorted(p.name for p in tmp_path.glob("reference_1_*.npz")) == [
+        "reference_1_10.npz", "reference_1_6.npz", "reference_1_8.npz"]  # fmt: skip
+    ck = np.load(tmp_path / "checkpoint.npz")
+    assert ck["index"].tolist() == list(range(10)) and ck["session"].tolist() == [0] * 6 + [1] * 4
+    a, b = full["_samples"], s["_samples"]
+    np.testing.assert_array_equal(a.wo, b.wo)  # each geometry once, in plan order
+    va, vb = a.value.reshape(10, 31), b.value.reshape(10, 31)
+    # session 0 as before up to its last reference (4); 4 and 5 now held at that reference
+    # (the one at 8 belongs to the uninterrupted run alone)
+    np.testing.assert_allclose(va[:4], vb[:4], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(va[4:6], vb[4:6], rtol=5e-3)
+    big = va > 0.05 * va.max()
+    assert 0 < np.median((np.abs(va - vb) / np.abs(va))[big]) < 0.02  # a new session
+
+
+def test_realistic_fakes_read_at_the_load_positions():
+    from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_effects import realise
+
+    fx = realise("cornell2005", 2)
+    cfg = CornellConfig(effects=fx, instrument_seed=2)
+    with fake_cornell_rig("laser_paper", seed=0, noise=False, config=cfg) as (rig, parts):
+        got = rig.move_motors([40.0, 20.0, 10.0])
+        rig.read(0.1)
+        rig.move_motors([30.0, 10.0, 5.0])
+        rig.read(0.1)
+        load, enc = parts["bench"].positions(), parts["bench"].encoder_positions()
+        inst = parts["instrument"]
+    np.testing.assert_allclose(got, [40.0, 20.0, 10.0], atol=1e-9)  # encoders: commanded
+    off = np.array([load[k] - enc[k] for k in ("arm", "turntable", "tilt")])
+    # half the backlash band behind a move to lower angles, plus the positioning noise
+    assert np.all(np.abs(off - fx["stage_backlash_deg"] / 2) < 5 * fx["stage_noise_deg"] + 1e-9)
+    assert np.all(off != fx["stage_backlash_deg"] / 2)
+    assert inst.event_clock and inst.clock_s > 0.2  # two reads and a move of the lamp's clock
 
 
 def test_rig_reads_follow_the_accessories():
