@@ -13,15 +13,13 @@ time of a full hemispherical campaign in-process and through the fake devices.
     python benchmarks/bench_hw_campaign.py served [--plan hemispherical] [--theta-i 40]
         an external driver script against `gonio devices serve --instrument cornell`
     python benchmarks/bench_hw_campaign.py degeneracy
-    python benchmarks/bench_hw_campaign.py budget [--seeds 10] [--materials a,b] [--plan P]
-        coverage of the expanded uncertainty (k = 2) on the realistic instrument over seeds
-        (each seed a different instrument and noise): per material and parameter group the
-        bias, rms error, median U, the share of parameters with the truth within U, U / rms
     python benchmarks/bench_hw_campaign.py shifts [--materials a,b]
         footprint, lamp drift and stray light injected alone: shifts of the fit without and
         with the laboratory's correction
-    python benchmarks/bench_hw_campaign.py ab [--materials a] [--seeds 2]
-        wall time of the realistic vs the ideal Cornell campaign, alternating A B A B
+
+The budget's coverage over realised instruments: ``benchmarks/bench_cornell_coverage.py``;
+the realistic against the ideal campaign's wall time: ``benchmarks/bench_cornell.py
+--realistic``.
 
 accuracy/timing/degeneracy print one JSON line per run (summary without samples); table and
 stderr print text tables.
@@ -168,9 +166,11 @@ def stderr_check(plan: str, materials, n_seeds: int, seed0: int = 100) -> None:
 
 
 def timing(plan: str, material: str) -> None:
-    """Wall time of the same campaign in-process and through the fake devices (same seed:
-    identical samples), beside the real instrument's estimated time (cornell_plans.Timing,
-    the integration times the auto-exposure chose)."""
+    """Wall time of the same campaign in-process and through the fake devices, beside the
+    real instrument's estimated time (cornell_plans.Timing, the integration times the
+    auto-exposure chose). On the realistic instrument (the default) the two paths draw their
+    stage errors and lamp clock each their own way, so ``same_samples`` is False (the ideal
+    instrument, ``effects=None``, gives identical samples on both paths)."""
     t = time.perf_counter()
     a = run_cornell_campaign(material, plan=plan, seed=0, fit=False)
     t_in = time.perf_counter() - t
@@ -260,41 +260,6 @@ def served(plan: str, material: str, max_geometries: int | None, theta_i: float 
     )  # fmt: skip
 
 
-def _groups(s: dict) -> dict[str, list[str]]:
-    g: dict[str, list[str]] = {}
-    for p in s["budget"]["parameters"]:
-        if p in s["truth"]:
-            g.setdefault(p.split("[")[0], []).append(p)
-    return g
-
-
-def budget_coverage(plan: str, materials, n_seeds: int, seed0: int = 0) -> None:
-    """Coverage of U (k = 2) over ``n_seeds`` realistic instruments per material."""
-    print(f"{'material':26s} {'param':9s} {'n':>4s} {'bias':>10s} {'rms err':>10s} "
-          f"{'median U':>10s} {'within U':>9s} {'U/rms':>7s}")  # fmt: skip
-    tot_n = tot_in = 0
-    for m in materials:
-        rows: dict[str, dict[str, list]] = {}
-        for j in range(n_seeds):
-            s = run_cornell_campaign(m, plan=plan, seed=seed0 + j)
-            b = s["budget"]["parameters"]
-            for g, names in _groups(s).items():
-                r = rows.setdefault(g, {"err": [], "U": [], "in": []})
-                for p in names:
-                    r["err"].append(s["fit"][p] - s["truth"][p])
-                    r["U"].append(b[p]["U"])
-                    r["in"].append(b[p]["truth_within_U"])
-        for g, r in rows.items():
-            e, u = np.array(r["err"]), np.array(r["U"])
-            rms = float(np.sqrt(np.mean(e**2)))
-            tot_n += len(e)
-            tot_in += int(np.sum(r["in"]))
-            print(f"{m[:26]:26s} {g:9s} {len(e):4d} {np.mean(e):10.3g} {rms:10.3g} "
-                  f"{np.median(u):10.3g} {100 * np.mean(r['in']):8.1f}% "
-                  f"{np.median(u) / rms if rms else float('nan'):7.2f}", flush=True)  # fmt: skip
-    print(f"all: {tot_in}/{tot_n} = {100 * tot_in / max(tot_n, 1):.1f}% of parameters within U")
-
-
 _SHIFTS = {
     "footprint": ({"beam_diameter_mm": 25.0, "fov_diameter_mm": 8.0, "sample_size_mm": 101.6},
                   {"footprint": "none"}, {"footprint": "refuse"}),
@@ -337,26 +302,11 @@ def shifts(plan: str, materials, seed: int) -> None:
                       + _shift_row(s, ideal), flush=True)  # fmt: skip
 
 
-def ab(plan: str, material: str, rounds: int) -> None:
-    """Wall time of the default (realistic) vs the ideal campaign, A B A B in one run."""
-    t = {"realistic": [], "ideal": []}
-    for _ in range(rounds):
-        for label, fx in (("realistic", "cornell2005"), ("ideal", None)):
-            t0 = time.perf_counter()
-            run_cornell_campaign(material, plan=plan, seed=0, effects=fx)
-            t[label].append(time.perf_counter() - t0)
-    r, i = np.median(t["realistic"]), np.median(t["ideal"])
-    print(
-        f"{material} {plan}: realistic {r:.2f} s, ideal {i:.2f} s (medians of {rounds}), "
-        f"ratio {r / i:.2f}; all: {json.dumps({k: [round(x, 2) for x in v] for k, v in t.items()})}"
-    )
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
         "what", choices=("table", "stderr", "accuracy", "timing", "served", "degeneracy",
-                         "budget", "shifts", "ab")
+                         "shifts")
     )  # fmt: skip
     ap.add_argument("--max-geometries", type=int, default=None)
     ap.add_argument("--theta-i", type=float, default=None, help="served: one incidence angle")
@@ -379,12 +329,8 @@ def main() -> None:
     elif a.what == "served":
         served(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint",
                a.max_geometries, a.theta_i)  # fmt: skip
-    elif a.what == "budget":
-        budget_coverage(a.plan or "incidence", mats, a.seeds, a.seed)
     elif a.what == "shifts":
         shifts(a.plan or "incidence", mats, a.seed)
-    elif a.what == "ab":
-        ab(a.plan or "incidence", mats[0], a.seeds)
     elif a.what == "timing":
         timing(a.plan or "hemispherical", mats[0] if len(mats) == 1 else "garnet_red_paint")
     else:
