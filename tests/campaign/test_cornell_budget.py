@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gonio.campaign.cornell import run_cornell_campaign, summary_text
-from gonio.campaign.cornell_budget import combine, propagate
+from gonio.campaign.cornell_budget import combine, propagate, propagate_independent
 
 
 def test_propagate_is_the_weighted_least_squares_response():
@@ -19,6 +19,45 @@ def test_propagate_is_the_weighted_least_squares_response():
     pats = np.c_[np.full(50, 0.3), 0.2 * x]  # an offset, a slope
     dp = propagate(jac, w, pats)
     np.testing.assert_allclose(dp, [[0.0, 0.2], [0.3, 0.0]], atol=1e-12)
+
+
+def test_independent_propagation_sums_each_geometry_alone():
+    """Per-geometry independent perturbations (the stages' positioning noise): the variance
+    is the sum over geometries of the squared response to that geometry's perturbation
+    alone (the slow way: one propagation per geometry, every band of it together)."""
+    g = np.random.default_rng(3)
+    n_geo, nb = 12, 4
+    jac = g.normal(size=(n_geo * nb, 3))
+    w = g.uniform(0.5, 2.0, n_geo * nb)
+    q = g.normal(size=(n_geo, nb))
+    var = propagate_independent(jac, w, {"noise": [q, 0.5 * q]}, nb)["noise"]
+    slow = np.zeros(3)
+    for k in range(n_geo):
+        one = np.zeros((n_geo, nb))
+        one[k] = q[k]
+        slow += 1.25 * propagate(jac, w, one.reshape(-1, 1))[:, 0] ** 2
+    np.testing.assert_allclose(var, slow, rtol=1e-10)
+
+
+def test_tilt_changes_the_irradiance_the_reduction_divides_by():
+    """A Lambertian sample reads the same BRDF at any tilt, but the irradiance on the tilted
+    sample is cos(θi') where the reduction divides by the nominal cos θi: the budget's tilt
+    pattern about y is f (cos(θi - u) / cos θi - 1) / √2 (second order about x)."""
+    from gonio import brdf
+    from gonio.campaign.cornell_budget import _geometry_patterns
+
+    th = np.radians([20.0, 60.0, 75.0])
+    wi = np.c_[np.sin(th), np.zeros(3), np.cos(th)]
+    wo = np.c_[-np.sin(th), np.zeros(3), np.cos(th)]
+    u = 1e-3
+    pats = _geometry_patterns(brdf.create("lambert", rho=0.6), wi, wo, 2, None,
+                              {"sample_tilt_rad": (u, 0.0)})["sample_tilt_rad"]  # fmt: skip
+    f = 0.6 / np.pi
+    np.testing.assert_allclose(pats[0], f * (np.cos(u) - 1) / np.sqrt(2), rtol=1e-6)  # 2nd order
+    # Rodrigues about +y by u takes (sin th, 0, cos th) to z' = cos th cos u - sin th sin u
+    expect = f * ((np.cos(th) * np.cos(u) - np.sin(th) * np.sin(u)) / np.cos(th) - 1) / np.sqrt(2)
+    np.testing.assert_allclose(pats[1][:, 0], expect, rtol=1e-9)
+    assert abs(pats[1][2, 0]) > 10 * abs(pats[1][0, 0])  # tan 75 / tan 20
 
 
 def test_combine_adds_in_quadrature_and_expands():
@@ -50,6 +89,12 @@ def test_realistic_campaign_reports_a_budget_that_covers_the_truth(tmp_path):
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     assert on_disk["budget"]["coverage"] == cov
     assert "budget tau" in summary_text(s) and "within U" in summary_text(s)
+    assert "stage_noise_deg" in tau and " +- " in summary_text(s)  # the time estimate's u
+    assert 0 < s["estimated_real_instrument_u_h"] < s["estimated_real_instrument_h"]
+    png = tmp_path / "plots" / "budget.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and on_disk["files"]["plots"] == [
+        "plots/budget.png"
+    ]
     ideal = run_cornell_campaign(
         "garnet_red_paint",
         plan="incidence",
