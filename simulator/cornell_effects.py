@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from gonio.simulator.effects import Distribution, EffectSpec, is_ideal
+from gonio.simulator.effects import Distribution, EffectSpec, is_ideal, preset_of
 from gonio.simulator.effects import check_magnitudes as _check_table
 from gonio.simulator.effects import realise as _realise
 
@@ -203,12 +203,7 @@ EFFECTS: dict[str, EffectSpec] = {
 
 
 def _preset(values: Mapping[str, tuple[float, float]]) -> dict[str, Distribution]:
-    out = {}
-    for name, spec in EFFECTS.items():
-        typ, spread = values.get(name, (0.0, 0.0))
-        lo, hi = spec.valid
-        out[name] = Distribution(typ, spread, (lo, spec.clip(hi)))
-    return out
+    return preset_of(values, EFFECTS)
 
 
 #: named instrument builds (typical magnitude, spread between instruments)

@@ -54,6 +54,7 @@ __all__ = [
     "check_magnitudes",
     "effect_rng",
     "is_ideal",
+    "preset_of",
     "realise",
 ]
 
@@ -353,13 +354,21 @@ EFFECTS: dict[str, EffectSpec] = {
 }  # fmt: skip
 
 
-def _preset(values: Mapping[str, tuple[float, float]]) -> dict[str, Distribution]:
+def preset_of(
+    values: Mapping[str, tuple[float, float]], table: Mapping[str, EffectSpec] | None = None
+) -> dict[str, Distribution]:
+    """A preset: every effect of ``table`` (default the LBL :data:`EFFECTS`) as a
+    :class:`Distribution` of ``values[name] = (typical, spread)`` (absent: 0, 0), clipped
+    to the effect's valid range."""
     out = {}
-    for name, spec in EFFECTS.items():
+    for name, spec in (EFFECTS if table is None else table).items():
         typ, spread = values.get(name, (0.0, 0.0))
         lo, hi = spec.valid
         out[name] = Distribution(typ, spread, (lo, spec.clip(hi)))
     return out
+
+
+_preset = preset_of
 
 
 #: named instrument builds: each effect as a Distribution (typical, spread between instruments)
