@@ -49,6 +49,7 @@ import argparse
 import dataclasses
 import math
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -1004,6 +1005,10 @@ def _measure_through_drivers(
         elif (outp / "checkpoint.npz").exists():
             (outp / "checkpoint.npz").unlink()
             (outp / "reference.npz").unlink(missing_ok=True)
+            for f in outp.glob("reference_*_*.npz"):  # re-measured references
+                f.unlink()
+            if (outp / "spectra").is_dir():  # raw spectra kept for the drift correction
+                shutil.rmtree(outp / "spectra")
     with fake_cornell_rig(
         setup.material, seed=setup.seed, noise=setup.noise, config=setup.cfg,
         time_scale=time_scale, faults=faults, prime=p.angles if prime else None,

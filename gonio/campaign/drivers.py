@@ -437,6 +437,12 @@ def run_cornell_measurements(
     records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
     resumed = len(records)
     keep_raw = bool(every) and drift_correction
+    # the raw spectra the drift correction reduces again: one file per geometry beside the
+    # references (written once; the checkpoint keeps only the reduced record)
+    spectra = None
+    if keep_raw and reference_path is not None:
+        spectra = Path(reference_path).with_name("spectra")
+        spectra.mkdir(exist_ok=True)
     # a resumed run is a new session of the instrument (the lamp lit again): its geometries
     # are reduced against its own references, the first measured where it starts
     session = 1 + max((int(r.get("session", 0)) for r in records.values()), default=-1)
@@ -453,7 +459,11 @@ def run_cornell_measurements(
                 rec["session"] = session
             records[j] = rec
             if checkpoint is not None:
+                raw = {k: rec.pop(k) for k in _RAW_KEYS if k in rec}
+                if spectra is not None and raw:
+                    _save_spectra(spectra / f"{j}.npz", raw)
                 checkpoint.add(j, rec)
+                rec.update(raw)
             if on_measurement is not None:
                 on_measurement(j, n)
         if every and start < n:
@@ -462,6 +472,11 @@ def run_cornell_measurements(
         if checkpoint is not None:
             checkpoint.flush()
     if keep_raw:
+        for j, rec in records.items():
+            if "signal_s" not in rec:  # measured before a resume: its spectra from disk
+                if spectra is None:
+                    raise ValueError(f"geometry {j}: no raw spectra to reduce against drift")
+                rec.update(_load_spectra(spectra / f"{j}.npz"))
         _reduce_against_interpolated(records, refs, c, stray_correction)
     out = _stack_records(records, n)
     out.update(resumed=np.array(resumed), reference=refs.first,
@@ -567,6 +582,26 @@ def _measure_geometry(
             rec[f"signal_{q}"] = raws[q]["signal"]
             rec[f"dark_{q}"] = raws[q]["dark"]
     return rec
+
+
+_RAW_KEYS = ("signal_s", "dark_s", "signal_p", "dark_p")
+
+
+def _save_spectra(path: Path, raw: Mapping[str, NDArray]) -> None:
+    """One geometry's raw spectra (whole counts as uint16, exactly; else float64)."""
+    arrays = {}
+    for k, v in raw.items():
+        v = np.asarray(v, float)
+        whole = np.all(v == np.rint(v)) and v.min() >= 0 and v.max() <= 65535
+        arrays[k] = v.astype(np.uint16) if whole else v
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def _load_spectra(path: Path) -> dict[str, NDArray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: np.asarray(z[k], dtype=np.float64) for k in _RAW_KEYS}
 
 
 def _reduce_against_interpolated(

@@ -126,6 +126,8 @@ def test_realistic_campaign_resumes_in_a_new_session(tmp_path):
         "reference_1_10.npz", "reference_1_6.npz", "reference_1_8.npz"]  # fmt: skip
     ck = np.load(tmp_path / "checkpoint.npz")
     assert ck["index"].tolist() == list(range(10)) and ck["session"].tolist() == [0] * 6 + [1] * 4
+    assert "signal_s" not in ck.files  # the raw spectra: one file per geometry, written once
+    assert sorted(int(p.stem) for p in (tmp_path / "spectra").glob("*.npz")) == list(range(10))
     a, b = full["_samples"], s["_samples"]
     np.testing.assert_array_equal(a.wo, b.wo)  # each geometry once, in plan order
     va, vb = a.value.reshape(10, 31), b.value.reshape(10, 31)
