@@ -1087,7 +1087,7 @@ def _report(
 
         summary["budget"] = cornell_budget(
             res_fit, info, samples, ref_obj, cfg, setup.knowledge, setup.corrections,
-            summary, reference_every=setup.reference_every,
+            summary, reference_every=setup.reference_every, angles=setup.plan.angles,
         )  # fmt: skip
     if setup.out is not None:
         _write_json(setup.out / "fit.json", res_fit.to_dict())

@@ -141,6 +141,7 @@ def _patterns(
     corr: dict,
     lamp_u: float,
     mirror_part: bool = False,
+    angles: NDArray | None = None,
 ) -> dict[str, NDArray]:
     """The laboratory's model of each effect's change of the readings, at its uncertainty
     after correction: ``{effect: (G, nb)}`` (or a list of patterns to add in quadrature)."""
@@ -149,7 +150,7 @@ def _patterns(
     if lamp_u:
         out["lamp_drift"] = lamp_u * y
     out.update(_cone_patterns(model, wi, wo, y, cfg, knowledge, mirror_part))
-    out.update(_geometry_patterns(model, wi, wo, y.shape[1], cfg, knowledge))
+    out.update(_geometry_patterns(model, wi, wo, y.shape[1], cfg, knowledge, angles))
     out.update(_footprint_patterns(wi, wo, y, knowledge, corr))
     return out
 
@@ -207,14 +208,16 @@ def _cone_patterns(
 
 
 def _geometry_patterns(
-    model: Any, wi: NDArray, wo: NDArray, nb: int, cfg: Any, knowledge: dict
-) -> dict:
+    model: Any, wi: NDArray, wo: NDArray, nb: int, cfg: Any, knowledge: dict,
+    angles: NDArray | None = None,
+) -> dict:  # fmt: skip
     """The sample's tilt and wobble and the stages' backlash: the true directions differ
     from the commanded ones the reduction uses. The reading is the BRDF at the true
     directions times the true irradiance ``cos θi'`` over the nominal ``cos θi`` the
     reduction divides by. A tilt of magnitude ``t`` at an unknown azimuth is two
     independent tilts about x and y of ``t / √2`` each; the backlash a lag of half the band
-    on each axis."""
+    on each axis, to the side the plan's order of moves (``angles``, :func:`lag_sides`)
+    puts it."""
     from gonio.simulator.cornell import forward, inverse
 
     out: dict[str, Any] = {}
@@ -236,14 +239,33 @@ def _geometry_patterns(
             out[name] = pats
     u = _u_after(knowledge, "stage_backlash_deg", False) / 2
     if u:
-        r = inverse(wi, wo, cfg.kinematics)
+        if angles is not None and len(angles) == len(wi):
+            base, side = np.asarray(angles, float), lag_sides(angles)
+        else:  # the order of the moves unknown: a lag to the same side everywhere
+            base, side = np.array(inverse(wi, wo, cfg.kinematics).angles, float), None
         pats = []
         for axis in range(3):
-            a = np.array(r.angles, float)
-            a[:, axis] += math.radians(u)
+            a = base.copy()
+            a[:, axis] += math.radians(u) * (1.0 if side is None else side[:, axis])
             pats.append(change(*forward(a, cfg.kinematics)))
         out["stage_backlash_deg"] = pats
     return out
+
+
+def lag_sides(angles: NDArray, start: NDArray | None = None) -> NDArray:
+    """The side each axis's load lags on at every geometry of a campaign measured in the
+    order of ``angles`` (N, 3) from ``start`` (default the stages' zero): ``-sign`` of the
+    last move of that axis (the backlash of ``gonio.simulator.cornell_physics.stage_offsets``
+    and the bench's stages), 0 before its first move."""
+    a = np.asarray(angles, float)
+    prev = np.zeros(3) if start is None else np.asarray(start, float)
+    d = np.diff(np.vstack([prev, a]), axis=0)
+    side = np.zeros_like(a)
+    last = np.zeros(3)
+    for g in range(len(a)):
+        last = np.where(d[g] != 0, -np.sign(d[g]), last)
+        side[g] = last
+    return side
 
 
 def _independent_patterns(
@@ -326,8 +348,10 @@ def cornell_budget(
     *,
     reference_every: int = 0,
     k: float = 2.0,
+    angles: NDArray | None = None,
 ) -> dict[str, Any]:
-    """The budget of a fitted Cornell campaign (module docstring).
+    """The budget of a fitted Cornell campaign (module docstring). ``angles``: the plan's
+    commanded motor angles (rad, in the order measured; the side of each stage's backlash).
 
     Returns ``{"parameters": {name: combine(...) + truth_within_U}, "k_summary": {k_dd: ...},
     "coverage": {...}, "effects": [...]}``; the truth is read from ``summary`` (the
@@ -355,6 +379,7 @@ def cornell_budget(
             corrections,
             lamp_u,
             bool(info.get("mirror_part")),
+            angles,
         )
     cols, names = [], []
     for name, p in pats.items():

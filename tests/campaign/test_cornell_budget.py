@@ -106,3 +106,22 @@ def test_realistic_campaign_reports_a_budget_that_covers_the_truth(tmp_path):
     assert all(
         not e["contributions"].get("lamp_drift") for e in ideal["budget"]["parameters"].values()
     )
+
+
+def test_lag_sides_follow_the_simulated_stages_backlash():
+    """The budget's side of each stage's backlash along a plan equals the lag the simulated
+    stages take (gonio.simulator.cornell_physics.stage_offsets, noise off), over half the
+    band."""
+    from gonio.simulator.cornell_physics import stage_offsets
+
+    from gonio.campaign.cornell_budget import lag_sides
+
+    g = np.random.default_rng(0)
+    angles = np.round(g.uniform(-1, 1, (40, 3)), 1)
+    angles[5:9, 1] = angles[4, 1]  # an axis that stands still keeps its side
+    lag, prev, out = np.zeros(3), np.zeros(3), []
+    for a in angles:
+        _off, lag = stage_offsets(a - prev, lag, 0.01, 0.0, g)
+        out.append(lag / 0.005)
+        prev = a
+    np.testing.assert_array_equal(lag_sides(angles), np.array(out))
