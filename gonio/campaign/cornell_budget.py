@@ -218,15 +218,24 @@ def _geometry_patterns(
     independent tilts about x and y of ``t / √2`` each; the backlash a lag of half the band
     on each axis, to the side the plan's order of moves (``angles``, :func:`lag_sides`)
     puts it."""
+    from gonio.campaign.cornell_lab import mirror_response
     from gonio.simulator.cornell import forward, inverse
 
     out: dict[str, Any] = {}
-    f0 = _model_values(model, wi, wo, nb)
+    mirror = bool(getattr(model, "has_delta", False)) and cfg is not None
+
+    def reading(wi2: NDArray, wo2: NDArray) -> NDArray:
+        # the smooth part, and a mirror part's top hat where the detector sees it (a tilt
+        # moves the mirror image of the source by twice its angle)
+        f = _model_values(model, wi2, wo2, nb)
+        return f + mirror_response(model, wi2, wo2, cfg) if mirror else f
+
+    f0 = reading(wi, wo)
     cos0 = np.where(wi[:, 2] > 0, wi[:, 2], 1.0)
 
     def change(wi2: NDArray, wo2: NDArray) -> NDArray:
         irr = np.clip(wi2[:, 2], 0.0, None) / cos0
-        return _model_values(model, wi2, wo2, nb) * irr[:, None] - f0
+        return reading(wi2, wo2) * irr[:, None] - f0
 
     for name in ("sample_tilt_rad", "sample_wobble_rad"):
         u = _u_after(knowledge, name, False)
@@ -360,6 +369,14 @@ def cornell_budget(
     from gonio.simulator.cornell import BANDS_NM, _hat_projector
 
     nb = len(BANDS_NM)
+    if info.get("mirror_part"):  # the rows the fit used (not the partial mirror peaks)
+        from gonio.campaign.cornell import _mirror_partial_mask
+
+        keep = ~_mirror_partial_mask(samples, cfg)
+        if not keep.all():
+            samples = samples.subset(np.flatnonzero(keep))
+            if angles is not None:
+                angles = np.asarray(angles)[keep[::nb]]
     wi, wo, y, w = _unique(samples, nb)
     model = res.model
     free = list(res.free)

@@ -39,6 +39,7 @@ __all__ = [
     "cone_response",
     "footprint_fraction",
     "footprint_refused",
+    "mirror_response",
     "slit_correction",
 ]
 
@@ -115,14 +116,35 @@ def cone_response(
         wgt = ws[:, None] * wd[None, :] * cos_i[:, :, None]
         out[chunk] = np.einsum("mijb,mij->mb", f, wgt) / ci[chunk, None]
     if pure.has_delta:
-        d, rho = pure.delta(wi)
-        rho = np.asarray(rho, float).reshape(len(wi), -1)
-        if np.any(rho > 0):
-            po = _points(wo, rd, pd)
-            inside = np.einsum("nkj,nj->nk", po, d) >= math.cos(a_s)
-            frac = inside.astype(float) @ wd
-            out = out + rho * (frac / (config.omega_nominal * ci))[:, None]
+        out = out + mirror_response(pure, wi, wo, config, ci, wd)
     return out
+
+
+def mirror_response(
+    model: Any, wi: NDArray, wo: NDArray, config: Any, ci: NDArray | None = None,
+    weights: NDArray | None = None,
+) -> NDArray:  # fmt: skip
+    """The laboratory's mirror part alone: ``ρ / (Ω_s cos θi)`` times the share of the
+    detector cone's ring-rule points inside the mirror image of the nominal source cone
+    (``ci``: the irradiance's cos, default the centre's; ``weights``: the detector rule's).
+    Zero for a model without one. Returns (G, n_bands)."""
+    wi = np.asarray(wi, float).reshape(-1, 3)
+    wo = np.asarray(wo, float).reshape(-1, 3)
+    nb = len(np.atleast_1d(model.wavelengths_nm)) if model.wavelengths_nm is not None else 1
+    if not model.has_delta:
+        return np.zeros((len(wi), nb))
+    a_s, a_d = _cap_alpha(config.omega_nominal), _cap_alpha(config.detector_solid_angle)
+    rd, pd, wd = _ring_rule(a_d)
+    wd = wd if weights is None else weights
+    ci = np.clip(wi[:, 2], 1e-12, None) if ci is None else ci
+    d, rho = model.delta(wi)
+    rho = np.asarray(rho, float).reshape(len(wi), -1)
+    if not np.any(rho > 0):
+        return np.zeros((len(wi), max(nb, rho.shape[1])))
+    po = _points(wo, rd, pd)
+    inside = np.einsum("nkj,nj->nk", po, d) >= math.cos(a_s)
+    frac = inside.astype(float) @ wd
+    return rho * (frac / (config.omega_nominal * ci))[:, None]
 
 
 @lru_cache(maxsize=4)
