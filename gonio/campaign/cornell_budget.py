@@ -216,8 +216,8 @@ def _geometry_patterns(
     directions times the true irradiance ``cos θi'`` over the nominal ``cos θi`` the
     reduction divides by. A tilt of magnitude ``t`` at an unknown azimuth is two
     independent tilts about x and y of ``t / √2`` each; the backlash a lag of half the band
-    on each axis, to the side the plan's order of moves (``angles``, :func:`lag_sides`)
-    puts it."""
+    on every axis at once (one magnitude for the three stages), each to the side the plan's
+    order of moves (``angles``, :func:`lag_sides`) puts it."""
     from gonio.campaign.cornell_lab import mirror_response
     from gonio.simulator.cornell import forward, inverse
 
@@ -252,12 +252,10 @@ def _geometry_patterns(
             base, side = np.asarray(angles, float), lag_sides(angles)
         else:  # the order of the moves unknown: a lag to the same side everywhere
             base, side = np.array(inverse(wi, wo, cfg.kinematics).angles, float), None
-        pats = []
-        for axis in range(3):
-            a = base.copy()
-            a[:, axis] += math.radians(u) * (1.0 if side is None else side[:, axis])
-            pats.append(change(*forward(a, cfg.kinematics)))
-        out["stage_backlash_deg"] = pats
+        # one magnitude for the three stages (the effect's, and the bench's): their lags
+        # move together, one pattern
+        a = base + math.radians(u) * (1.0 if side is None else side)
+        out["stage_backlash_deg"] = change(*forward(a, cfg.kinematics))
     return out
 
 
