@@ -32,10 +32,16 @@ Results directory (``out``)::
     plan.json        the resolved campaign settings
     checkpoint.npz   completed measurements (through drivers; resume with resume=True)
     reference.npz    the reference measurement (through drivers)
+    reference_<session>_<count>.npz
+                     the standard re-measured after <count> geometries (through drivers)
+    spectra/<j>.npz  raw spectra of geometry j, reduced again against the interpolated
+                     references at the end (through drivers, with the drift correction)
     samples.csv      BRDF samples (31 rows per geometry, wavelength_nm column)
     fit.json         the fit (FitResult.to_dict())
     summary.json     material, model, truth, fit, stderr, relative_error, rms, n_samples,
-                     converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma, ...)
+                     converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma,
+                     budget, estimated_real_instrument_h and _u_h, ...)
+    plots/budget.png the uncertainty budget (gonio.plots.budget)
 
 References
 ----------
