@@ -46,6 +46,14 @@ def add_arguments(parser) -> None:
         choices=["error", "clip", "drop"],
         help="values below 0: refuse (default), clip to 0 or drop",
     )
+    parser.add_argument(
+        "--cells",
+        type=int,
+        default=None,
+        help="average each incident direction's samples in NxN equal-solid-angle cells "
+        "(power of two 8..256; 0 = every sample), bounding pabopto2bsdf's and bsdf2ttree's "
+        "time (default 32)",
+    )
     parser.add_argument("--kind", default="klems", choices=["klems", "ttree"], help="BSDF form")
     parser.add_argument(
         "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
@@ -136,8 +144,9 @@ def _run(args) -> int:
         if args.out is None:
             raise ValueError(f"{args.what}: give the output folder after the samples table")
         samples = read_samples(args.source)
+        cells = pabopto.DEFAULT_CELLS if args.cells is None else (args.cells or None)
         if args.what == "pabopto":
-            paths = pabopto.write_pabopto(samples, args.out, args.name, args.negative)
+            paths = pabopto.write_pabopto(samples, args.out, args.name, args.negative, cells)
             sym = pabopto.pabopto_symmetry([(t, p) for t, p, _ in pabopto.incidences(samples)])
             print(f"{len(paths)} PAB-Opto files in {args.out} ({pabopto.SYMMETRIES[sym]})")
             report.update(files=[str(p) for p in paths], symmetry=pabopto.SYMMETRIES[sym])
@@ -154,6 +163,7 @@ def _run(args) -> int:
                 up=up,
                 negative=args.negative,
                 nproc=args.nproc,
+                cells=cells,
             )
             _print_build(b)
             report["bsdf"] = b.to_dict()

@@ -71,8 +71,10 @@ from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
 
 __all__ = [
+    "DEFAULT_CELLS",
     "SYMMETRIES",
     "BSDFBuild",
+    "bin_directions",
     "build_bsdf",
     "build_model_bsdf",
     "incidences",
@@ -87,6 +89,10 @@ __all__ = [
 _QUADRANT_SYM = "IQQBQ?B?QB??B??A"  # index = QUAD1 | QUAD2<<1 | QUAD3<<2 | QUAD4<<3
 SYMMETRIES = {"I": "isotropic", "Q": "quadrilateral", "B": "bilateral", "A": "anisotropic"}
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+_CELLS = (8, 16, 32, 64, 128, 256)
+#: cells per side of the averaging grid of :func:`pabopto_files` (chosen from the measured
+#: build time against error in the module docstring)
+DEFAULT_CELLS = 32
 
 
 def incidences(samples: BRDFSamples) -> list[tuple[float, float, np.ndarray]]:
@@ -106,6 +112,66 @@ def incidences(samples: BRDFSamples) -> list[tuple[float, float, np.ndarray]]:
     for k, (t, p) in enumerate(uniq):
         out.append((float(t), float(p), np.flatnonzero(inv == k)))
     return out
+
+
+def _disk2square(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Shirley-Chiu concentric map of the unit disk onto the unit square (Radiance's
+    ``disk2square``, ``src/common/disk2square.c``)."""
+    r = np.hypot(x, y)
+    phi = np.arctan2(y, x)
+    phi = np.where(phi < -math.pi / 4, phi + 2 * math.pi, phi)
+    q = math.pi / 4
+    reg = np.clip(np.floor((phi + q) / (2 * q)), 0, 3).astype(int)
+    a = np.choose(reg, [r, -(phi - math.pi / 2) * r / q, -r, -(phi - 1.5 * math.pi) * -r / q])
+    b = np.choose(reg, [phi * r / q, r, (phi - math.pi) * -r / q, -r])
+    return a * 0.5 + 0.5, b * 0.5 + 0.5
+
+
+def bin_directions(
+    theta_o: np.ndarray, phi_o: np.ndarray, value: np.ndarray, cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Average samples of one incident direction in ``cells × cells`` equal-solid-angle cells.
+
+    The cells are those of pabopto2bsdf's own ``GRIDRES`` × ``GRIDRES`` grid (256) at a
+    coarser resolution: the exiting direction ``(x, y, z)`` maps to the disk point
+    ``(x, y) / sqrt(1 + z)`` (equal area) and through Shirley and Chiu's concentric map to
+    the square (``bsdfrep.c``, ``pos_from_vec``), so with ``cells`` a power of two up to
+    256 each cell is a union of pabopto2bsdf's cells. Each occupied cell gives one point:
+    the normalised mean of its unit vectors and the mean of its values.
+
+    Parameters
+    ----------
+    theta_o, phi_o : array
+        Exiting directions (radians).
+    value : array
+        BRDF values (sr⁻¹).
+    cells : int
+        Cells per side of the square.
+
+    Returns
+    -------
+    theta_o, phi_o, value, count : arrays
+        One entry per occupied cell (radians, sr⁻¹, samples averaged).
+
+    References
+    ----------
+    .. [SC1997] P. Shirley and K. Chiu, "A low distortion map between disk and square",
+       Journal of Graphics Tools 2(3), 45-52, 1997. https://doi.org/10.1080/10867651.1997.10487479
+    """
+    st = np.sin(theta_o)
+    v = np.stack([st * np.cos(phi_o), st * np.sin(phi_o), np.cos(theta_o)], axis=-1)
+    norm = 1.0 / np.sqrt(1.0 + np.abs(v[:, 2]))
+    sx, sy = _disk2square(v[:, 0] * norm, v[:, 1] * norm)
+    ix = np.clip((sx * cells).astype(int), 0, cells - 1)
+    iy = np.clip((sy * cells).astype(int), 0, cells - 1)
+    uniq, inv, count = np.unique(ix * cells + iy, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    mean = np.stack([np.bincount(inv, v[:, k], uniq.size) for k in range(3)], axis=-1)
+    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+    val = np.bincount(inv, value, uniq.size) / count
+    theta = np.arccos(np.clip(mean[:, 2], -1.0, 1.0))
+    phi = np.mod(np.arctan2(mean[:, 1], mean[:, 0]), 2 * math.pi)
+    return theta, phi, val, count
 
 
 def pabopto_symmetry(theta_phi_deg: Sequence[tuple[float, float]]) -> str:
@@ -160,7 +226,10 @@ def pabopto_symmetry(theta_phi_deg: Sequence[tuple[float, float]]) -> str:
 
 
 def pabopto_files(
-    samples: BRDFSamples, sample_name: str = "gonio", negative: str = "error"
+    samples: BRDFSamples,
+    sample_name: str = "gonio",
+    negative: str = "error",
+    cells: int | None = DEFAULT_CELLS,
 ) -> dict[str, str]:
     """File name → PAB-Opto text, one file per incident direction (see the module docstring).
 
@@ -172,6 +241,11 @@ def pabopto_files(
         ``#sample_name`` (no double quote).
     negative : {"error", "clip", "drop"}
         Values below 0 (noise in a dark region): refused (default), clipped to 0, or dropped.
+    cells : int or None
+        Average each incident direction's samples in ``cells × cells`` equal-solid-angle
+        cells (:func:`bin_directions`; a power of two, 8..256) before writing, which bounds
+        the points per file and so pabopto2bsdf's and bsdf2ttree's run time (see the module
+        docstring, "Run time"); ``None`` writes every sample.
 
     Raises
     ------
@@ -189,6 +263,10 @@ def pabopto_files(
         )
     if negative not in ("error", "clip", "drop"):
         raise ValueError(f"negative {negative!r}; expected 'error', 'clip' or 'drop'")
+    if cells is not None and (
+        not isinstance(cells, int) or isinstance(cells, bool) or cells not in _CELLS
+    ):
+        raise ValueError(f"cells {cells!r}; expected None or a power of two in 8..256")
     if not isinstance(sample_name, str) or '"' in sample_name or "\n" in sample_name:
         raise ValueError(f"sample_name {sample_name!r} must be one line without double quotes")
     value = samples.value
@@ -214,13 +292,15 @@ def pabopto_files(
         keep = v >= 0.0
         if not keep.any():
             raise ValueError(f"incident direction theta {t:g}, phi {p:g} deg has no samples")
+        a, b, v = to[rows][keep], po[rows][keep], v[keep]
+        if cells is not None:
+            a, b, v, _ = bin_directions(np.radians(a), np.radians(b), v, cells)
+            a, b = np.degrees(a), np.degrees(b)
         head = (
             f'#sample_name "{sample_name}"\n#format: theta phi BRDF\n#intheta {t:.6f}\n'
             f"#inphi {p:.6f}\n#upphi 90\n#colorimetry: CIE-Y\n"
         )
-        body = "".join(
-            f"{a:.6f} {b:.6f} {c:.9g}\n" for a, b, c in zip(to[rows][keep], po[rows][keep], v[keep])
-        )
+        body = "".join(f"{x:.6f} {y:.6f} {z:.9g}\n" for x, y, z in zip(a, b, v))
         files[f"{sample_name}_t{t:07.3f}_p{p:07.3f}.dat"] = head + body
     return files
 
@@ -230,6 +310,7 @@ def write_pabopto(
     folder: str | os.PathLike,
     sample_name: str = "gonio",
     negative: str = "error",
+    cells: int | None = DEFAULT_CELLS,
 ) -> list[Path]:
     """Write :func:`pabopto_files` into ``folder`` (created if missing); the paths written.
 
@@ -239,14 +320,15 @@ def write_pabopto(
     """
     if not isinstance(sample_name, str) or not _NAME.match(sample_name):
         raise ValueError(f"sample_name {sample_name!r} must be a word (letters, digits, _ . -)")
-    files = pabopto_files(samples, sample_name, negative)
+    files = pabopto_files(samples, sample_name, negative, cells)
     folder = Path(folder)
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), Path("."))
+    if existing.is_dir() and not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"folder {str(existing)!r} is not writable")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"folder {str(folder)!r} cannot be created: {exc}") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise ValueError(f"folder {str(folder)!r} is not writable")
     written: list[Path] = []
     try:
         for name, text in files.items():
@@ -412,6 +494,7 @@ def build_bsdf(
     negative: str = "error",
     nproc: int = 1,
     timeout: float = 3600.0,
+    cells: int | None = DEFAULT_CELLS,
 ) -> BSDFBuild:
     """Measured samples → PAB-Opto files → ``pabopto2bsdf`` → Klems or tensor tree XML.
 
@@ -438,6 +521,8 @@ def build_bsdf(
         ``pabopto2bsdf -n`` (processes).
     timeout : float
         Seconds each program may take before it is killed.
+    cells : int or None
+        Averaging grid of the PAB-Opto files (:func:`pabopto_files`); ``None``: every sample.
     """
     from gonio.io.radiance import run_tool
 
@@ -448,7 +533,7 @@ def build_bsdf(
         raise ValueError(f"symmetry {symmetry!r}; expected one of {allowed}")
     upv = _check_up(up)
     folder = Path(folder)
-    files = write_pabopto(samples, folder / "pabopto", sample_name, negative)
+    files = write_pabopto(samples, folder / "pabopto", sample_name, negative, cells)
     sym = pabopto_symmetry([(t, p) for t, p, _ in incidences(samples)])
     seconds: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="gonio_bsdf_", dir=folder) as tmp:
@@ -516,3 +601,79 @@ def _isotropic(m: Any) -> bool:
     if "lobes" in p:
         return all(float(lobe[0]) == float(lobe[1]) for lobe in p["lobes"])
     return True
+
+
+def _unit(theta_deg: np.ndarray, phi_deg: np.ndarray) -> np.ndarray:
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def bsdf_values(
+    xml_path: str | os.PathLike, wi_deg: tuple[float, float], wo_deg: np.ndarray
+) -> np.ndarray:
+    """Front reflection of a BSDF XML (Radiance's ``SDevalBSDF`` through pyradiance).
+
+    ``wi_deg`` is ``(θi, φi)`` and ``wo_deg`` an ``(N, 2)`` array of ``(θo, φo)`` in degrees,
+    in the sample frame (the XML's standard axes; :func:`pabopto_files` writes ``#upphi
+    90`` so that they are gonio's). Returns the photometric (CIE Y) values in sr⁻¹, shape
+    ``(N,)``.
+    """
+    import pyradiance.bsdf as rb
+
+    sd = _LOADED.get(str(xml_path))
+    if sd is None:  # pyradiance owns the loaded data (an explicit free double-frees)
+        sd = _LOADED[str(xml_path)] = rb.load_file(str(xml_path))
+    ti, pi = (float(x) for x in wi_deg)
+    return np.array([float(rb.query(sd, ti, pi, float(t), float(p))[1]) for t, p in wo_deg])
+
+
+_LOADED: dict[str, Any] = {}
+
+
+#: the exiting directions of :func:`bsdf_error_table` (θo; φo every 30°): off-peak (those
+#: outside the lobe) and near grazing
+OFF_PEAK_THETA_DEG = (10.0, 25.0, 40.0, 55.0, 70.0)
+GRAZING_THETA_DEG = (80.0, 85.0)
+
+
+def bsdf_error_table(
+    xml_path: str | os.PathLike,
+    references: dict[str, Any],
+    theta_i_deg: Sequence[float] = (0.0, 30.0, 60.0, 75.0),
+    phi_i_deg: Sequence[float] = (0.0, 45.0, 90.0),
+) -> list[dict[str, Any]]:
+    """A BSDF XML's front reflection against reference BRDFs: peak, off-peak, near grazing.
+
+    For each incidence ``(θi, φi)`` (normal incidence once): ``peak`` the XML's value at
+    the mirror direction; ``off_peak`` the exiting directions θo in
+    :data:`OFF_PEAK_THETA_DEG`, φo every 30°, where the first reference is below twice its
+    smallest value over them (outside the lobe, on the diffuse floor); ``grazing`` θo in
+    :data:`GRAZING_THETA_DEG`, φo every 30°. Each row holds, per reference (e.g.
+    ``{"fit": model, "truth": model}``), the relative error ``xml / reference − 1`` at the
+    peak and the signed error of largest magnitude off-peak and near grazing
+    (``<ref>_peak``, ``<ref>_off_peak``, ``<ref>_grazing``).
+    """
+    phis = np.arange(0.0, 360.0, 30.0)
+    first = next(iter(references.values()))
+    rows = []
+    for ti in theta_i_deg:
+        for pi in phi_i_deg if ti > 0 else phi_i_deg[:1]:
+            wi = _unit(np.array(ti), np.array(pi))
+            mirror = np.array([[ti, (pi + 180.0) % 360.0]])
+            t, p = np.meshgrid(OFF_PEAK_THETA_DEG, phis, indexing="ij")
+            off = np.stack([t.ravel(), p.ravel()], axis=1)
+            floor = np.asarray(first(wi, _unit(off[:, 0], off[:, 1])), dtype=float)
+            off = off[floor < 2.0 * floor.min()]
+            t, p = np.meshgrid(GRAZING_THETA_DEG, phis, indexing="ij")
+            graz = np.stack([t.ravel(), p.ravel()], axis=1)
+            row: dict[str, Any] = {"theta_i": float(ti), "phi_i": float(pi)}
+            for part, wo in (("peak", mirror), ("off_peak", off), ("grazing", graz)):
+                got = bsdf_values(xml_path, (ti, pi), wo)
+                if part == "peak":
+                    row["peak"] = float(got[0])
+                for name, model in references.items():
+                    want = np.asarray(model(wi, _unit(wo[:, 0], wo[:, 1])), dtype=float)
+                    err = got / want - 1.0
+                    row[f"{name}_{part}"] = float(err[np.argmax(np.abs(err))])
+            rows.append(row)
+    return rows

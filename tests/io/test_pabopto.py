@@ -69,7 +69,7 @@ def test_boundary_azimuths_are_refused_with_the_rotation_to_add():
 def test_files_follow_the_pabopto_header_and_data_conventions():
     m = brdf.create("ward_gmd", **ISO)
     s = _table(m, [0.0, 30.0], [0.0, 45.0, 90.0], n_o=4, n_p=6)
-    files = pabopto.pabopto_files(s, "tile")
+    files = pabopto.pabopto_files(s, "tile", cells=None)  # every sample
     # normal incidence is one direction whatever the rotation
     assert sorted(files) == [
         "tile_t000.000_p000.000.dat",
@@ -94,6 +94,45 @@ def test_files_follow_the_pabopto_header_and_data_conventions():
     assert len(files["tile_t000.000_p000.000.dat"].splitlines()) == 6 + 3 * 24
 
 
+def test_binning_averages_in_pabopto2bsdfs_equal_solid_angle_cells():
+    """cells x cells cells of the concentric map of (x, y)/sqrt(1 + z): equal solid angle,
+    unions of pabopto2bsdf's 256 x 256 cells; one point per occupied cell, at the normalised
+    mean direction with the mean value."""
+    rng = np.random.default_rng(1)
+    n = 200_000
+    z = rng.random(n)  # uniform in solid angle over the hemisphere
+    phi = rng.uniform(0.0, 2 * math.pi, n)
+    theta = np.arccos(z)
+    value = rng.random(n)
+    t, p, v, count = pabopto.bin_directions(theta, phi, value, 16)
+    assert t.shape == p.shape == v.shape == (256,) and count.sum() == n
+    # equal solid angle: the counts are Poisson about n / 256 (chi-square, 255 dof: 255 ± 23)
+    chi2 = float(np.sum((count - n / 256) ** 2 / (n / 256)))
+    assert chi2 < 255 + 4 * 23, chi2
+    # one sample per cell is returned unchanged; two in one cell are averaged
+    one = pabopto.bin_directions(np.array([0.3]), np.array([1.0]), np.array([2.5]), 32)
+    np.testing.assert_allclose([one[0][0], one[1][0], one[2][0]], [0.3, 1.0, 2.5], rtol=1e-12)
+    two = pabopto.bin_directions(
+        np.array([0.6, 0.6]), np.array([1.0, 1.001]), np.array([1.0, 3.0]), 8
+    )
+    assert two[2].tolist() == [2.0] and two[1][0] == pytest.approx(1.0005, abs=1e-9)
+
+
+def test_files_bound_the_points_per_incident_direction():
+    m = brdf.create("ward_gmd", **ISO)
+    s = _table(m, [0.0, 30.0, 60.0], [0.0], n_o=60, n_p=120)  # 7200 samples per direction
+    counts = {
+        c: [len(t.splitlines()) - 6 for t in pabopto.pabopto_files(s, cells=c).values()]
+        for c in (8, 32, None)
+    }
+    assert counts[None] == [7200] * 3
+    assert max(counts[8]) <= 64 and max(counts[32]) <= 1024 and min(counts[32]) > 500
+    with pytest.raises(ValueError, match="cells 12"):
+        pabopto.pabopto_files(s, cells=12)
+    with pytest.raises(ValueError, match="cells True"):
+        pabopto.pabopto_files(s, cells=True)
+
+
 def test_bad_tables_are_refused():
     m = brdf.create("ward_gmd", **ISO)
     with pytest.raises(ValueError, match="at least two"):
@@ -102,9 +141,10 @@ def test_bad_tables_are_refused():
     s.value[3] = -1e-3
     with pytest.raises(ValueError, match="1 values below 0"):
         pabopto.pabopto_files(s)
-    n_rows = sum(len(t.splitlines()) for t in pabopto.pabopto_files(s, negative="drop").values())
+    dropped = pabopto.pabopto_files(s, negative="drop", cells=None)
+    n_rows = sum(len(t.splitlines()) for t in dropped.values())
     assert n_rows == 2 * 6 + 2 * 24 - 1
-    clipped = pabopto.pabopto_files(s, negative="clip")
+    clipped = pabopto.pabopto_files(s, negative="clip", cells=None)
     assert " 0\n" in "".join(clipped.values())
     with pytest.raises(ValueError, match="negative"):
         pabopto.pabopto_files(s, negative="zero")
@@ -149,6 +189,14 @@ def test_write_pabopto_never_leaves_a_partial_set(tmp_path, monkeypatch):
     assert list((tmp_path / "partial").iterdir()) == []
     with pytest.raises(ValueError, match="sample_name"):
         pabopto.write_pabopto(s, tmp_path / "x", "two words")
+    # a folder the process may not write (root ignores permission bits, so os.access says no)
+    (tmp_path / "ro").mkdir()
+    monkeypatch.setattr(pabopto.os, "access", lambda *a, **k: False)
+    with pytest.raises(ValueError, match="is not writable"):
+        pabopto.write_pabopto(s, tmp_path / "ro", "tile")
+    with pytest.raises(ValueError, match="is not writable"):  # before any Radiance program
+        pabopto.build_bsdf(s, tmp_path / "ro", "tile")
+    assert list((tmp_path / "ro").iterdir()) == []
 
 
 # ----------------------------------------------------------------------------- real Radiance
