@@ -105,6 +105,7 @@ def _reduced_campaign(out: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     from gonio.io import pabopto
+    from gonio.io.atomic import atomic_write_bytes
     from gonio.io.samples_table import read_samples
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -160,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                 }
             )
             if args.json:
-                Path(args.json).write_text(json.dumps(results, indent=1))
+                atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
         if args.model_route:
             for g in res:
                 out = Path(tmp, f"f{g}")
@@ -172,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
                     {"route": "model", "resolution": g, "seconds": b.seconds, "rows": rows}
                 )
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1))
+        atomic_write_bytes(args.json, json.dumps(results, indent=1).encode())
     return 0
 
 
