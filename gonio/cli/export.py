@@ -46,6 +46,22 @@ def add_arguments(parser) -> None:
         choices=["error", "clip", "drop"],
         help="values below 0: refuse (default), clip to 0 or drop",
     )
+    parser.add_argument(
+        "--cells",
+        type=int,
+        default=None,
+        help="average each incident direction's samples in NxN equal-solid-angle cells "
+        "(power of two 8..256; 0 = every sample), bounding pabopto2bsdf's and bsdf2ttree's "
+        "time (default 32)",
+    )
+    parser.add_argument(
+        "--spread",
+        type=float,
+        default=None,
+        help="split a cell whose values differ by more than this factor (keeps the peak's "
+        "points; 0 = never split; default 2)",
+    )
+    parser.add_argument("--max-lobes", type=int, default=None, help="bsdf2ttree -l (default 15000)")
     parser.add_argument("--kind", default="klems", choices=["klems", "ttree"], help="BSDF form")
     parser.add_argument(
         "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
@@ -136,8 +152,12 @@ def _run(args) -> int:
         if args.out is None:
             raise ValueError(f"{args.what}: give the output folder after the samples table")
         samples = read_samples(args.source)
+        cells = pabopto.DEFAULT_CELLS if args.cells is None else (args.cells or None)
+        spread = pabopto.DEFAULT_SPREAD if args.spread is None else (args.spread or None)
         if args.what == "pabopto":
-            paths = pabopto.write_pabopto(samples, args.out, args.name, args.negative)
+            paths = pabopto.write_pabopto(
+                samples, args.out, args.name, args.negative, cells, spread
+            )
             sym = pabopto.pabopto_symmetry([(t, p) for t, p, _ in pabopto.incidences(samples)])
             print(f"{len(paths)} PAB-Opto files in {args.out} ({pabopto.SYMMETRIES[sym]})")
             report.update(files=[str(p) for p in paths], symmetry=pabopto.SYMMETRIES[sym])
@@ -154,6 +174,9 @@ def _run(args) -> int:
                 up=up,
                 negative=args.negative,
                 nproc=args.nproc,
+                cells=cells,
+                spread=spread,
+                max_lobes=(pabopto.DEFAULT_MAX_LOBES if args.max_lobes is None else args.max_lobes),
             )
             _print_build(b)
             report["bsdf"] = b.to_dict()
@@ -164,7 +187,11 @@ def _run(args) -> int:
 
 def _print_build(b) -> None:
     refl = b.components.get("Interior Refl", {})
-    times = ", ".join(f"{k} {v:.1f} s" for k, v in b.seconds.items())
+    times = ", ".join(
+        f"{k} {v:.1f} s (cpu {b.seconds.get(k + '_cpu', float('nan')):.1f} s)"
+        for k, v in b.seconds.items()
+        if not k.endswith("_cpu")
+    )
     print(
         f"{b.kind} BSDF ({b.symmetry}) {b.xml}; primitive {b.rad}; checkBSDF: Lambertian "
         f"{refl.get('lambertian', [float('nan')])[0]:.3f}, max directional reflectance "

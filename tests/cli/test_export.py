@@ -57,6 +57,45 @@ def test_export_refuses_boundary_rotations(tmp_path, capsys):
     assert not (tmp_path / "pab").exists()
 
 
+def test_export_refuses_bad_tables_and_writes_nothing(tmp_path, capsys):
+    """Missing angles (a column, or a value), values below 0 and a bad --cells: exit 2 with
+    the reason, and no output folder."""
+    src = _samples(tmp_path, phis=(0.0,))
+    lines = src.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("theta_i"))
+    cols = lines[k].split(",")
+    j = cols.index("phi_o")
+    no_col = tmp_path / "no_phi_o.csv"
+    no_col.write_text(
+        "\n".join(
+            lines[:k]
+            + [",".join(c for i, c in enumerate(ln.split(",")) if i != j) for ln in lines[k:]]
+        )
+        + "\n"
+    )
+    empty = tmp_path / "empty_angle.csv"
+    row = lines[k + 1].split(",")
+    row[j] = ""
+    empty.write_text("\n".join(lines[: k + 1] + [",".join(row)] + lines[k + 2 :]) + "\n")
+    negative = tmp_path / "negative.csv"
+    row = lines[k + 1].split(",")
+    row[cols.index("value")] = "-0.01"
+    negative.write_text("\n".join(lines[: k + 1] + [",".join(row)] + lines[k + 2 :]) + "\n")
+    for bad, extra, reason in (
+        (no_col, [], "missing column"),
+        (empty, [], "row 1 has a non-numeric field"),
+        (negative, [], "below 0"),
+        (src, ["--cells", "12"], "cells 12"),
+    ):
+        out = tmp_path / f"out_{bad.stem}"
+        assert main(["export", "pabopto", str(bad), str(out), *extra]) == 2, bad
+        assert reason in capsys.readouterr().err
+        assert not out.exists()
+    assert main(["export", "pabopto", str(src), str(tmp_path / "all"), "--cells", "0"]) == 0
+    data = (tmp_path / "all").glob("*_t030.000_*.dat")
+    assert len(next(data).read_text().splitlines()) == 6 + 12 * 16  # every sample
+
+
 def test_export_material_from_a_fit(tmp_path, capsys):
     fit = {
         "model": "ward",
