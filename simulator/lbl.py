@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -1484,6 +1484,57 @@ class LBLInstrument:
             band, source_samples, lens, img, rays,
         )  # fmt: skip
         return img, meta
+
+    def capture_series(
+        self,
+        sample: Any,
+        theta_i: float,
+        phi_i: float = 0.0,
+        *,
+        settings: Sequence[Mapping[str, Any]],
+        noise: bool = True,
+        binning: tuple[int, int] | bool | None = None,
+        band: int | None = None,
+        source_samples: int | None = None,
+        rays_per_pixel: int = 1,
+        clock_s: float | None = None,
+    ) -> list[tuple[NDArray[np.uint16], dict[str, Any]]]:
+        """Several raw images of one scene: ``capture(sample, theta_i, phi_i, **s)`` for each
+        ``s`` of ``settings`` (keys ``exposure``, ``f_number``, ``rng``), the noise-free
+        scene rendered once.
+
+        The scene does not depend on the exposure or the f-number (:class:`_Scene`: both
+        enter only when the frame is composed), so each frame equals the separate
+        :meth:`capture` bit for bit (a test checks it); a calibration series such as the
+        f-stop ladder (the standard at one incidence through every stop, repeated) then
+        costs one BRDF evaluation instead of one per frame.
+        """
+        kind, model, material = _resolve_sample(sample)
+        theta_i, phi_i, _, _ = self._check_args(theta_i, phi_i, 1.0, 1.0)
+        binning = self._check_binning(binning)
+        rays = _check_rays(rays_per_pixel)
+        bad = sorted({k for s in settings for k in s} - {"exposure", "f_number", "rng"})
+        if bad:
+            raise ValueError(f"settings have unknown keys {bad}; expected exposure, f_number, rng")
+        sc0 = None
+        out = []
+        for s in settings:
+            _, _, exposure, f_number = self._check_args(
+                theta_i, phi_i, s.get("exposure", 0.01), s.get("f_number", 4.0)
+            )
+            gen, seed = _rng_and_seed(s.get("rng")) if noise else (None, None)
+            if sc0 is None:
+                sc0 = self._scene(kind, model, theta_i, phi_i, exposure, band, source_samples,
+                                  rays=rays)  # fmt: skip
+            sc = sc0 if exposure == sc0.exposure else replace(sc0, exposure=exposure)
+            key = _frame_key(kind, theta_i, phi_i, exposure, f_number, seed, 0)
+            img, lens = self._shoot(sc, f_number, noise, gen, binning, True, (key, clock_s))
+            meta = self.metadata(
+                kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise,
+                binning, band, source_samples, lens, img, rays,
+            )  # fmt: skip
+            out.append((img, meta))
+        return out
 
     @staticmethod
     def _check_binning(binning):

@@ -48,6 +48,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from gonio._validate import check_scalar
 
+#: arrays of at least this many radii are inverted by the compiled Kannala-Brandt inverse
+#: (:mod:`gonio.simulator._lens_kernels`, the same result bit for bit); smaller ones by
+#: numpy, which needs no compiled code loaded
+_COMPILED_MIN = 4096
+
 __all__ = ["LENS_MODELS", "FisheyeLens", "make_lens"]
 
 #: valid values of :attr:`FisheyeLens.model`
@@ -187,6 +192,18 @@ class FisheyeLens:
             return np.arcsin(np.clip(r, 0.0, 1.0))
         # Kannala-Brandt: safeguarded Newton on g(t) = r, t in [0, theta_max * 1.5]
         hi_t = min(self.theta_max * 1.5, math.pi)
+        r = np.asarray(r, dtype=np.float64)
+        if r.size >= _COMPILED_MIN:  # the same iteration compiled, bit for bit
+            from gonio.simulator._lens_kernels import kb_inverse
+
+            out = np.empty(r.size)
+            kb_inverse(np.ascontiguousarray(r).ravel(), *map(float, self.k), hi_t, out)
+            return out.reshape(r.shape)
+        return self._g_inv_numpy(r, hi_t)
+
+    def _g_inv_numpy(self, r: NDArray, hi_t: float) -> NDArray:
+        """The Kannala-Brandt inverse in numpy (the reference of
+        :func:`gonio.simulator._lens_kernels.kb_inverse`)."""
         t = np.clip(r, 0.0, hi_t)
         lo = np.zeros_like(r)
         hi = np.full_like(r, hi_t)

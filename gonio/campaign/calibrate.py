@@ -109,14 +109,18 @@ def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
         img, meta = inst.capture(target, math.radians(a), 0.0, exposure=2e-5, f_number=32.0,
                                  rng=int(gen.integers(2**62)))  # fmt: skip
         spots.append((math.radians(a), img, meta))
-    ladder = []
-    for _ in range(LADDER_REPEATS):
-        frames = []
-        for n in LADDER_STOPS:  # the standard at normal incidence, ~half the full well
-            t = LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2
-            frames.append(inst.capture("standard", 0.0, 0.0, exposure=t, f_number=n,
-                                       rng=int(gen.integers(2**62))))  # fmt: skip
-        ladder.append(frames)
+    # the standard at normal incidence through every stop, ~half the full well, repeated:
+    # one scene, so rendered once (capture_series; the same frames as one capture each)
+    settings = [{"exposure": LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2, "f_number": n,
+                 "rng": int(gen.integers(2**62))}
+                for _ in range(LADDER_REPEATS) for n in LADDER_STOPS]  # fmt: skip
+    series = getattr(inst, "capture_series", None)
+    if series is not None:
+        frames = series("standard", 0.0, 0.0, settings=settings)
+    else:  # an instrument without the series API: one capture a frame
+        frames = [inst.capture("standard", 0.0, 0.0, **s) for s in settings]
+    k = len(LADDER_STOPS)
+    ladder = [frames[i : i + k] for i in range(0, len(frames), k)]
     return {"board": views, "mirror": spots, "ladder": ladder}
 
 

@@ -134,6 +134,8 @@ def _stages(
     """Stages 2-4 of :func:`run` (capture and reduce, fit, report) on a prepared setup."""
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
+        if setup.t_calibration is not None:  # part of prepare (before the workers fork)
+            ex.timings["calibration"] = setup.t_calibration
         # 2. capture and reduce
         per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
         samples = _merge(plan, per_angle, ex, saved_raw=setup.raw is not None)
@@ -179,6 +181,7 @@ class _Setup:
     instrument: Any
     workers: int
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
+    t_calibration: float | None = None  # seconds to make (or read) it
 
     @property
     def raw(self) -> Path | None:
@@ -205,8 +208,10 @@ def _prepare(
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
+    t = time.perf_counter()
     lab = _laboratory(plan, inst, outp)
-    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab)
+    t_cal = time.perf_counter() - t if lab is not None else None
+    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
 def _laboratory(plan: Plan, inst: Any, outp: Path | None) -> Any:

@@ -530,3 +530,24 @@ def test_rays_per_pixel_supersampling():
     for bad in (2, 0, 100, 2.5, "4"):
         with pytest.raises(ValueError, match="rays_per_pixel"):
             inst.capture(sharp, TH, rays_per_pixel=bad)
+
+
+@pytest.mark.parametrize("preset", ["ideal", "modern"])
+def test_capture_series_equals_separate_captures(preset):
+    # one scene rendered for every frame of the series; each frame (noise on, seeded, with
+    # the realistic instrument's effects) must be the separate capture bit for bit
+    from gonio.simulator.effects import realise
+
+    inst = LBLInstrument("ellipsoid", width=160, height=120, effects=realise(preset, 3),
+                         instrument_seed=3)  # fmt: skip
+    settings = [{"exposure": 0.004 * (n / 2.0) ** 2, "f_number": n, "rng": 11 + i}
+                for i, n in enumerate((2.0, 5.6, 16.0, 2.0))]  # fmt: skip
+    for sample in (STANDARD, "rolled_brass", None):
+        got = inst.capture_series(sample, TH, 0.2, settings=settings)
+        assert len(got) == len(settings)
+        for (img, meta), s in zip(got, settings):
+            ref, rmeta = inst.capture(sample, TH, 0.2, **s)
+            assert np.array_equal(img, ref)
+            assert meta == rmeta
+    with pytest.raises(ValueError, match="unknown keys"):
+        inst.capture_series(STANDARD, TH, settings=[{"exposure": 0.01, "gain": 2}])
