@@ -35,6 +35,7 @@ import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -331,16 +332,29 @@ class _SimulatedLBL:
         rot = round(math.degrees(phi_i) % 360.0, 6) if kind == "measured" else None
         return self._clock.get((kind, round(math.degrees(theta_i), 6), rot), 0.0)
 
-    def prepare(self, sample: Any = "standard") -> None:
+    def prepare(self, sample: Any = "standard", lab: Any = None) -> None:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
-        before forking workers, which then inherit them instead of each loading them."""
+        before forking workers, which then inherit them instead of each loading them.
+
+        With the laboratory's calibration ``lab``, its reduction too (the corrections' code,
+        e.g. ``scipy.stats`` for the glare's trimmed mean, ~1 s to import on the shared
+        2-core machine, and the calibrated lens's geometry); and the image codec (OpenCV) the
+        raw frames are written with. Nothing of this changes a result: only modules and
+        deterministic caches are loaded.
+        """
+        import cv2  # noqa: F401  (the write-behind's TIFF encoder, once instead of per worker)
+
         from gonio.calibration.reduce import Capture, reduce_selected
 
         _ = self.inst.geometry
         # one throw-away bracket each (~10 ms) and their reduction: loads the kernels and
         # fills the reduction's pixel-geometry caches
-        std, bg, meas = (Capture(self.shoot(x, 0.5, 0.0, 0)) for x in ("standard", None, sample))
-        reduce_selected(meas, std, bg, rng=0)
+        std, bg, meas = (self.shoot(x, 0.5, 0.0, 0) for x in ("standard", None, sample))
+        reduce_selected(Capture(meas), Capture(std), Capture(bg), rng=0)
+        if lab is not None:
+            from gonio.campaign.knowledge import reduce_incidence
+
+            reduce_incidence(std, bg, {0.0: meas}, lab, seeds={0.0: 0})
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
@@ -368,6 +382,8 @@ def _capture_and_reduce(
     calls = [(setup.plan, th, setup.raw, resume) for th in angles]
     state = {"inst": setup.instrument, "truth": setup.truth, "lab": setup.lab}
     prepare = getattr(setup.instrument, "prepare", None)
+    if prepare is not None and isinstance(setup.instrument, _SimulatedLBL):
+        prepare = partial(prepare, lab=setup.lab)  # the laboratory's reduction warmed too
     with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
         for k, res in ex.map(
             _incidence, calls, state=state, prepare=prepare and (lambda: prepare(setup.truth))
