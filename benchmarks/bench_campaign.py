@@ -174,8 +174,18 @@ def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> li
     alternating (A B A B): wall clock from the shell's view (start-up, imports and JIT-cache
     loading included) beside the campaign's own total, so start-up = wall − total; then
     each preset's wall time over the first's, pair by pair (the realistic instrument's cost
-    against the ideal one's, measured side by side)."""
+    against the ideal one's, measured side by side), and the same for the CPU seconds of
+    the campaign's processes (workers and plot process included). On a shared machine whose
+    scheduler groups a session's processes (Linux autogroup), a loaded machine gives the
+    session about the same CPU share however many processes it runs, so there the wall
+    ratio follows the CPU ratio and parallel stages gain nothing; on an idle machine they
+    do."""
+    import resource
     import subprocess
+
+    def children_cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return r.ru_utime + r.ru_stime
 
     # the console script's own entry point (it ends with a quick exit, see console_main)
     code = "from gonio.cli import console_main; console_main()"
@@ -183,35 +193,37 @@ def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> li
     for k in range(repeat):
         for preset in presets:
             with tempfile.TemporaryDirectory() as d:
-                t = time.perf_counter()
+                t, c = time.perf_counter(), children_cpu()
                 subprocess.run(
                     [sys.executable, "-c", code, "campaign", "--out", f"{d}/out", "--quiet",
                      "--json", f"{d}/s.json", "--preset", preset],
                     check=True, cwd=d,
                 )  # fmt: skip
-                wall = time.perf_counter() - t
+                wall, cpu = time.perf_counter() - t, children_cpu() - c
                 with open(f"{d}/s.json") as f:
                     summ = json.load(f)
             tim = summ["timings_s"]
-            rows.append({"preset": preset, "run": k, "wall_s": wall,
+            rows.append({"preset": preset, "run": k, "wall_s": wall, "cpu_s": cpu,
                          "startup_s": wall - tim["total"], "timings_s": tim,
                          "relative_error": summ["relative_error"]})  # fmt: skip
             stages = ", ".join(f"{s} {v:.2f}" for s, v in tim.items())
             print(f"run {k} {preset}: wall {wall:.2f} s = start-up {wall - tim['total']:.2f} s "
-                  f"+ campaign {tim['total']:.2f} s ({stages})", flush=True)  # fmt: skip
+                  f"+ campaign {tim['total']:.2f} s ({stages}); CPU {cpu:.2f} s",
+                  flush=True)  # fmt: skip
     for preset in presets:
         walls = sorted(r["wall_s"] for r in rows if r["preset"] == preset)
         print(f"default campaign, preset {preset}, cold, wall clock (s): median "
               f"{walls[len(walls) // 2]:.2f}, min {walls[0]:.2f}, max {walls[-1]:.2f}")  # fmt: skip
-    base = [r["wall_s"] for r in rows if r["preset"] == presets[0]]
-    for preset in presets[1:]:
-        ratios = sorted(r["wall_s"] / b for r, b in
-                        zip((r for r in rows if r["preset"] == preset), base))  # fmt: skip
-        print(
-            f"wall {preset} / {presets[0]}, pair by pair: "
-            + ", ".join(f"{x:.2f}" for x in ratios)
-            + f"; median {ratios[len(ratios) // 2]:.2f}"
-        )
+    for what in ("wall_s", "cpu_s"):  # CPU: the processes' user + system seconds
+        base = [r[what] for r in rows if r["preset"] == presets[0]]
+        for preset in presets[1:]:
+            ratios = sorted(r[what] / b for r, b in
+                            zip((r for r in rows if r["preset"] == preset), base))  # fmt: skip
+            print(
+                f"{what[:-2]} {preset} / {presets[0]}, pair by pair: "
+                + ", ".join(f"{x:.2f}" for x in ratios)
+                + f"; median {ratios[len(ratios) // 2]:.2f}"
+            )
     return rows
 
 

@@ -15,8 +15,10 @@ Two sides, kept apart as in a laboratory:
 
 :func:`laboratory_calibration` does both once per physical instrument and keeps the result
 (in memory, and as ``calibration.json`` in a folder when one is given): a laboratory
-calibrates its instrument once, not for every campaign. It costs about 4 s (16 board views,
-10 mirror spots) the first time.
+calibrates its instrument once, not for every campaign (in one process; a new campaign
+process calibrates anew unless the plan names a calibration folder). Its independent jobs
+(board views, mirror spots, f-stop ladder; the lens calibrations, the f-stop fit) can run in
+parallel (``parallel``).
 
 References
 ----------
@@ -30,7 +32,8 @@ import hashlib
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +64,9 @@ LADDER_EXPOSURE_S = 0.004
 
 _CACHE: dict[str, Any] = {}
 
+#: runs a list of independent jobs and returns their results in order
+Parallel = Callable[[Sequence[Callable[[], Any]]], list]
+
 
 class FrontSurfaceMirror(Lambert):
     """A front-surface (aluminised) flat mirror: no diffuse part, a mirror part of
@@ -78,49 +84,78 @@ class FrontSurfaceMirror(Lambert):
         return wi * np.array([-1.0, -1.0, 1.0]), np.full(wi.shape[:-1], self._r)
 
 
-def _board_views(inst: Any, seed: int) -> list[np.ndarray]:
-    from gonio.calibration.lens import board_poses, make_board, render_board_view
-
-    key = "board/" + _key(inst, lens_only=True) + f"/{seed}"
-    views = _CACHE.get(key)
-    if views is None:
-        board = make_board()
-        poses = board_poses(inst.lens, board, N_BOARD_VIEWS, distance=0.2,
-                            max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
-        views = [render_board_view(inst.lens, board, r, t, supersample=1, px_per_square=60)
-                 for r, t in poses]  # fmt: skip
-        _CACHE[key] = views
-    return views
+def _serial(jobs: Sequence[Callable[[], Any]]) -> list[Any]:
+    return [job() for job in jobs]
 
 
-def take_captures(inst: Any, *, seed: int = 0) -> dict[str, Any]:
-    """The calibration captures of a simulated instrument (the instrument's side).
+def _render_views(inst: Any, board: Any, poses: Sequence[tuple]) -> list[np.ndarray]:
+    from gonio.calibration.lens import render_board_view
 
-    Returns ``{"board": [uint8 views], "mirror": [(theta_i, image, side-car)], "ladder":
-    [[(image, side-car) per stop] per repeat]}``; the spot exposures keep the spot
-    unsaturated, the ladder's exposure times (scaled with the marked N²) keep the standard
-    near half the full well at every stop.
-    """
-    views = _board_views(inst, seed)
+    return [render_board_view(inst.lens, board, r, t, supersample=1, px_per_square=60)
+            for r, t in poses]  # fmt: skip
+
+
+def _spots(inst: Any, seeds: Sequence[int]) -> list[tuple[float, np.ndarray, dict]]:
     target = FrontSurfaceMirror()
-    spots = []
-    gen = np.random.default_rng(seed)
-    for a in MIRROR_ANGLES_DEG:
+    out = []
+    for a, s in zip(MIRROR_ANGLES_DEG, seeds):
         img, meta = inst.capture(target, math.radians(a), 0.0, exposure=2e-5, f_number=32.0,
-                                 rng=int(gen.integers(2**62)))  # fmt: skip
-        spots.append((math.radians(a), img, meta))
-    # the standard at normal incidence through every stop, ~half the full well, repeated:
-    # one scene, so rendered once (capture_series; the same frames as one capture each)
-    settings = [{"exposure": LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2, "f_number": n,
-                 "rng": int(gen.integers(2**62))}
-                for _ in range(LADDER_REPEATS) for n in LADDER_STOPS]  # fmt: skip
+                                 rng=s)  # fmt: skip
+        out.append((math.radians(a), img, meta))
+    return out
+
+
+def _ladder(inst: Any, settings: list[dict[str, Any]]) -> list[list[tuple[np.ndarray, dict]]]:
+    # one scene (the standard at normal incidence), so rendered once (capture_series: the
+    # same frames as one capture each)
     series = getattr(inst, "capture_series", None)
     if series is not None:
         frames = series("standard", 0.0, 0.0, settings=settings)
     else:  # an instrument without the series API: one capture a frame
         frames = [inst.capture("standard", 0.0, 0.0, **s) for s in settings]
     k = len(LADDER_STOPS)
-    ladder = [frames[i : i + k] for i in range(0, len(frames), k)]
+    return [frames[i : i + k] for i in range(0, len(frames), k)]
+
+
+def take_captures(inst: Any, *, seed: int = 0, parallel: Parallel | None = None) -> dict[str, Any]:
+    """The calibration captures of a simulated instrument (the instrument's side).
+
+    Returns ``{"board": [uint8 views], "mirror": [(theta_i, image, side-car)], "ladder":
+    [[(image, side-car) per stop] per repeat]}``; the spot exposures keep the spot
+    unsaturated, the ladder's exposure times (scaled with the marked N²) keep the standard
+    near half the full well at every stop.
+
+    ``parallel`` runs a list of independent jobs and returns their results in order
+    (:meth:`gonio.campaign.executor.CampaignExecutor.parallel`; default: one after the
+    other): the board views (in two halves), the mirror spots and the ladder. Every
+    capture's seed is drawn here first, in the order of the captures, so the captures are
+    the same however the jobs run.
+    """
+    from gonio.calibration.lens import board_poses, make_board
+
+    run = parallel or _serial
+    gen = np.random.default_rng(seed)
+    spot_seeds = [int(gen.integers(2**62)) for _ in MIRROR_ANGLES_DEG]
+    # the standard through every marked stop, ~half the full well, repeated
+    settings = [{"exposure": LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2, "f_number": n,
+                 "rng": int(gen.integers(2**62))}
+                for _ in range(LADDER_REPEATS) for n in LADDER_STOPS]  # fmt: skip
+    key = "board/" + _key(inst, lens_only=True) + f"/{seed}"
+    views = _CACHE.get(key)
+    jobs: list[Callable[[], Any]] = []
+    if views is None:
+        board = make_board()
+        poses = board_poses(inst.lens, board, N_BOARD_VIEWS, distance=0.2,
+                            max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
+        half = (len(poses) + 1) // 2
+        jobs += [partial(_render_views, inst, board, poses[:half]),
+                 partial(_render_views, inst, board, poses[half:])]  # fmt: skip
+    jobs += [partial(_spots, inst, spot_seeds), partial(_ladder, inst, settings)]
+    got = run(jobs)
+    if views is None:
+        views = _CACHE[key] = got[0] + got[1]
+        got = got[2:]
+    spots, ladder = got
     return {"board": views, "mirror": spots, "ladder": ladder}
 
 
@@ -133,6 +168,7 @@ def calibrate(
     method: str = "eq3",
     arm_azimuth: float = 0.0,
     design: Mapping[str, float] | None = None,
+    parallel: Parallel | None = None,
 ):
     """The laboratory's calibration from its captures (the laboratory's side).
 
@@ -153,6 +189,10 @@ def calibrate(
         Dome azimuth of the source arm's plane (radians; the design value).
     design : mapping, optional
         Other design values the budget uses (``sample_radius``, ``spot_radius``, metres).
+    parallel : callable, optional
+        Runs a list of independent jobs, results in order (see :func:`take_captures`): the
+        lens calibration from all views, those from the even and the odd views (the focal
+        length's uncertainty) and the f-stop calibration.
 
     Returns
     -------
@@ -160,22 +200,28 @@ def calibrate(
     """
     from gonio.calibration.angles import MirrorGeometry
     from gonio.calibration.laboratory import LabCalibration
-    from gonio.calibration.lens import calibrate_fisheye, make_board
     from gonio.calibration.mirror import fit_mirror, spot_centroid
     from gonio.calibration.radiometry import SensorModel
     from gonio.geometry import to_vector
 
-    h = hashlib.sha256()
-    for v in captures["board"]:
-        h.update(np.ascontiguousarray(v).tobytes())
-    lens_cal = _CACHE.get("lens/" + h.hexdigest())
-    if lens_cal is None:  # the same views give the same calibration
-        lens_cal = _CACHE["lens/" + h.hexdigest()] = calibrate_fisheye(
-            captures["board"], make_board()
-        )
+    views = captures["board"]
+    keys = {"full": _views_key(views, b""), "split": _views_key(views, b"split")}
+    jobs: dict[str, Callable[[], Any]] = {}
+    if keys["full"] not in _CACHE:  # the same views give the same calibration
+        jobs["full"] = partial(_lens_calibration, views)
+    if keys["split"] not in _CACHE:
+        jobs["even"], jobs["odd"] = partial(_half_fx, views[0::2]), partial(_half_fx, views[1::2])
+    if captures.get("ladder"):
+        jobs["fstops"] = partial(_fstops, captures["ladder"])
+    got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
+    if "full" in got:
+        _CACHE[keys["full"]] = got["full"]
+    lens_cal = _CACHE[keys["full"]]
+    if "even" in got:
+        _CACHE[keys["split"]] = _split_half(got["even"], got["odd"], lens_cal.lens.fx)
     lens_rec = lens_cal.to_dict()
     lens_rec.pop("seconds", None)  # a run time: the calibration file is the same every run
-    lens_rec["fx_u_rel"] = _split_half_focal(captures["board"], lens_cal)
+    lens_rec["fx_u_rel"] = float(_CACHE[keys["split"]])
     lens = lens_cal.lens
     uv, dirs = [], []
     for theta_i, img, meta in captures["mirror"]:
@@ -186,13 +232,7 @@ def calibrate(
         dirs.append(to_vector(theta_i, arm_azimuth + math.pi))
     nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
     mirror = fit_mirror(uv, dirs, lens, nominal, method=method)
-    fstops = None
-    if captures.get("ladder"):
-        from gonio.calibration.fstops import calibrate_fstops, overlap_ratios
-        from gonio.calibration.reduce import Capture
-
-        ov = [o for rep in captures["ladder"] for o in overlap_ratios(Capture(list(rep)))]
-        fstops = calibrate_fstops(ov)
+    fstops = got.get("fstops")
     info = {"lens_rms_px": lens_cal.rms, "lens_views": lens_cal.n_views,
             "mirror_rms_deg": mirror.rms_deg, "mirror_points": mirror.n_points}  # fmt: skip
     pitch = captures["mirror"][0][2].get("sensor", {}).get("pixel_pitch_m")
@@ -222,26 +262,41 @@ def specification(preset: str) -> dict[str, dict[str, Any]]:
             for k, d in PRESETS[preset].items() if d.typical or d.spread}  # fmt: skip
 
 
-def _split_half_focal(views: list, full: Any) -> float:
-    """Relative standard uncertainty of the calibrated focal length: half the difference of
-    the calibrations on the even and the odd views (each half has √2 times the full set's
-    error), at least 2e-4 (cached with the views)."""
-    from gonio.calibration.lens import calibrate_fisheye, make_board
-
-    h = hashlib.sha256(b"split")
+def _views_key(views: Sequence[Any], salt: bytes) -> str:
+    h = hashlib.sha256(salt)
     for v in views:
         h.update(np.ascontiguousarray(v).tobytes())
-    key = "lens/" + h.hexdigest()
-    got = _CACHE.get(key)
-    if got is None:
-        try:
-            a = calibrate_fisheye(views[0::2], make_board()).lens.fx
-            b = calibrate_fisheye(views[1::2], make_board()).lens.fx
-            got = max(abs(a - b) / (2.0 * full.lens.fx), 2e-4)
-        except ValueError:  # too few usable views in a half
-            got = 1e-3
-        _CACHE[key] = got
-    return float(got)
+    return "lens/" + h.hexdigest()
+
+
+def _lens_calibration(views: Sequence[Any]) -> Any:
+    from gonio.calibration.lens import calibrate_fisheye, make_board
+
+    return calibrate_fisheye(views, make_board())
+
+
+def _half_fx(views: Sequence[Any]) -> float | None:
+    """The focal length calibrated from a half of the views (None: too few usable views)."""
+    try:
+        return float(_lens_calibration(views).lens.fx)
+    except ValueError:
+        return None
+
+
+def _split_half(a: float | None, b: float | None, fx: float) -> float:
+    """Relative standard uncertainty of the calibrated focal length ``fx``: half the
+    difference of the calibrations on the even and the odd views (each half has √2 times
+    the full set's error), at least 2e-4; 1e-3 when a half has too few usable views."""
+    if a is None or b is None:
+        return 1e-3
+    return max(abs(a - b) / (2.0 * fx), 2e-4)
+
+
+def _fstops(ladder: Sequence[Sequence[Any]]) -> Any:
+    from gonio.calibration.fstops import calibrate_fstops, overlap_ratios
+    from gonio.calibration.reduce import Capture
+
+    return calibrate_fstops([o for rep in ladder for o in overlap_ratios(Capture(list(rep)))])
 
 
 def _key(inst: Any, lens_only: bool = False) -> str:
@@ -264,6 +319,7 @@ def laboratory_calibration(
     specification: Mapping[str, Mapping[str, Any]] | None = None,
     method: str = "eq3",
     seed: int = 0,
+    parallel: Parallel | None = None,
 ):
     """The calibration of a simulated instrument, made once and kept.
 
@@ -271,7 +327,9 @@ def laboratory_calibration(
     ``info["instrument"]``, the instrument's identity) is read instead; otherwise the
     calibration is made (:func:`take_captures`, :func:`calibrate`), kept in memory for the
     same physical instrument, and written to ``folder`` if given (a folder copied from
-    another instrument's campaign is calibrated anew).
+    another instrument's campaign is calibrated anew). ``parallel``: how the independent
+    jobs of :func:`take_captures` and :func:`calibrate` run (default one after the other;
+    a campaign gives :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
@@ -284,8 +342,8 @@ def laboratory_calibration(
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
                   "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
-        cal = calibrate(take_captures(inst, seed=seed), nominal_mirror, method=method,
-                        design=design)  # fmt: skip
+        caps = take_captures(inst, seed=seed, parallel=parallel)
+        cal = calibrate(caps, nominal_mirror, method=method, design=design, parallel=parallel)
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)

@@ -15,6 +15,9 @@ the machine lives here, not in the stages:
 * **Write-behind** (:func:`write_behind`): raw frames are written on a background thread of
   whichever process captured them (OpenCV encodes without the GIL), so saving overlaps the
   next captures; a task's writes are finished before its result is reported.
+* **Parallel jobs** (:meth:`CampaignExecutor.parallel`): a stage's independent pieces that
+  are not incidence angles (the calibration captures, the lens calibrations) on processes
+  forked for them.
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
@@ -121,6 +124,20 @@ def _init_worker(state: dict[str, Any], parent: int | None = None) -> None:
         die_with_parent(parent)
     _STATE.clear()
     _STATE.update(state)
+
+
+#: The jobs of :meth:`CampaignExecutor.parallel`, inherited by its forked processes.
+_JOBS: list[Callable[[], Any]] = []
+
+
+def _init_jobs(jobs: list[Callable[[], Any]], parent: int) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent(parent)
+    _JOBS[:] = jobs
+
+
+def _job(k: int) -> Any:
+    return _JOBS[k]()
 
 
 def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
@@ -241,6 +258,39 @@ class CampaignExecutor:
             self.write_busy_s += busy
             yield futs[f], res
         self._close_pool()
+
+    def parallel(self, jobs: Sequence[Callable[[], Any]]) -> list[Any]:
+        """``[job() for job in jobs]``, the jobs on up to :attr:`workers` processes forked
+        for them (which inherit everything, so a job may be any closure; its result is
+        pickled back); with one worker or one job, here, in order.
+
+        For a stage's independent pieces that are not incidence angles, e.g. the
+        calibration captures and the calibrations made from them
+        (:func:`gonio.campaign.calibrate.laboratory_calibration`). A job's error is
+        raised here (after the others are stopped).
+        """
+        jobs = list(jobs)
+        if self.workers == 1 or len(jobs) <= 1:
+            return [job() for job in jobs]
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(
+            min(self.workers, len(jobs)), mp_context=mp.get_context("fork"),
+            initializer=_init_jobs, initargs=(jobs, os.getpid()),
+        )  # fmt: skip
+        ok = False
+        try:
+            futures = [pool.submit(_job, k) for k in range(len(jobs))]
+            out = [f.result() for f in futures]
+            ok = True
+            return out
+        finally:
+            if not ok:  # a job failed or the campaign was interrupted: stop the others
+                for proc in list(getattr(pool, "_processes", {}).values()):
+                    with contextlib.suppress(OSError):
+                        proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=not ok)
 
     def _start_pool(self, state: dict[str, Any], prepare: Callable[[], None] | None) -> Any:
         import multiprocessing as mp

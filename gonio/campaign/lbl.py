@@ -135,7 +135,12 @@ def _stages(
     """Stages 2-4 of :func:`run` (capture and reduce, fit, report) on a prepared setup."""
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
-        if setup.t_calibration is not None:  # part of prepare (before the workers fork)
+        if plan.calibration is None:  # the calibration captures, on the executor's processes
+            t = time.perf_counter()
+            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel)
+            if setup.lab is not None:
+                setup.t_calibration = time.perf_counter() - t
+        if setup.t_calibration is not None:  # before the capture's workers fork
             ex.timings["calibration"] = setup.t_calibration
         # 2. capture and reduce
         per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
@@ -209,17 +214,18 @@ def _prepare(
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
-    t = time.perf_counter()
-    lab = _laboratory(plan, inst, outp)
+    t = time.perf_counter()  # a calibration folder is read now (made ones: in the stages)
+    lab = _laboratory(plan, inst, outp) if plan.calibration is not None else None
     t_cal = time.perf_counter() - t if lab is not None else None
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None) -> Any:
+def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
-    instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`) and copied to
-    ``OUT/calibration``; None for the ideal instrument, whose design is its truth."""
+    instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
+    jobs run by ``parallel``) and copied to ``OUT/calibration``; None for the ideal
+    instrument, whose design is its truth."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
@@ -235,6 +241,7 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None) -> Any:
     lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
+        parallel=parallel,
     )  # fmt: skip
     _warm(lab, sim)
     return lab

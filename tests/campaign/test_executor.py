@@ -53,3 +53,29 @@ def test_map_in_process_and_on_a_pool_give_the_same_results():
 def test_workers_must_be_positive():
     with pytest.raises(ValueError, match="workers"):
         executor.CampaignExecutor(0)
+
+
+def test_parallel_runs_closures_on_forked_processes_in_order():
+    import os
+
+    big = list(range(1000))  # inherited by the forked processes, not pickled
+    jobs = [lambda k=k: (k, sum(big) + k, os.getpid()) for k in range(5)]
+    with executor.CampaignExecutor(1) as ex:
+        here = ex.parallel(jobs)
+    with executor.CampaignExecutor(2) as ex:
+        there = ex.parallel(jobs)
+    assert [r[:2] for r in here] == [r[:2] for r in there] == [(k, 499500 + k) for k in range(5)]
+    assert {r[2] for r in here} == {os.getpid()}
+    assert os.getpid() not in {r[2] for r in there}
+
+
+def test_parallel_raises_a_jobs_error_and_leaves_no_process():
+    import multiprocessing as mp
+
+    def bad():
+        raise ValueError("job failed")
+
+    with executor.CampaignExecutor(2) as ex:
+        with pytest.raises(ValueError, match="job failed"):
+            ex.parallel([lambda: 1, bad, lambda: time.sleep(30)])
+    assert mp.active_children() == []
