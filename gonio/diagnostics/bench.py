@@ -1127,6 +1127,67 @@ for _name, _ablate, _what in (
     )
 
 
+#: scales of an effect's typical magnitude in the magnitude knob's settings
+EFFECT_SCALES = (0.5, 2.0)
+
+
+def _magnitude_settings() -> tuple[str, ...]:
+    """``"ideal"`` and ``"<effect>*<scale>"`` for every effect of the modern preset at each of
+    :data:`EFFECT_SCALES` times its typical magnitude that lies in the effect's valid range
+    (with ``"<effect>*1"``, the ``lbl_effect`` row, between them)."""
+    from gonio.simulator.effects import PRESETS, check_magnitudes
+
+    out = ["ideal"]
+    for name in _effect_settings()[1:]:
+        typical = PRESETS["modern"][name].typical
+        for scale in EFFECT_SCALES:
+            try:
+                check_magnitudes({name: scale * typical})
+            except ValueError:
+                continue
+            out.append(f"{name}*{scale:g}")
+    return tuple(out)
+
+
+def _knob_effect_magnitude(setting: str, seed: int) -> dict[str, float]:
+    """One effect alone at ``scale`` times its typical magnitude (``"name*scale"``), through
+    capture → eq. 2 → fit uncorrected: its error grows with the magnitude, its cost is the
+    time of the pipeline with it."""
+    from gonio.simulator.effects import PRESETS
+
+    if setting == "ideal":
+        return lbl_pipeline(seed=seed, effects={})
+    name, _, scale = setting.partition("*")
+    if name not in PRESETS["modern"] or not scale:
+        raise ValueError(f"lbl_effect_magnitude setting {setting!r}; expected 'effect*scale'")
+    magnitude = float(scale) * PRESETS["modern"][name].typical
+    return {**lbl_pipeline(seed=seed, effects={name: magnitude}), "magnitude": magnitude}
+
+
+try:  # the settings come from the effects' table
+    _MAGNITUDE_SETTINGS = _magnitude_settings()
+except ImportError:  # pragma: no cover - the simulator's effects are not there
+    _MAGNITUDE_SETTINGS = ("ideal",)
+
+register_knob(
+    Knob(
+        "lbl_effect_magnitude",
+        "one imperfection of the LBL instrument alone at "
+        + " and ".join(f"{x:g}" for x in EFFECT_SCALES)
+        + " times the modern preset's typical magnitude (the lbl_effect rows are 1 times), "
+        "uncorrected, through capture → eq. 2 → fit (rolled brass, θi = 20, 50°): how its "
+        "error and its cost grow with its magnitude",
+        settings=_MAGNITUDE_SETTINGS,
+        quick_settings=("ideal", "veiling_glare*0.5", "veiling_glare*2"),
+        run=_knob_effect_magnitude,
+        primary="max_rel_err",
+        unit="effect*scale",
+        needs=_EFFECT_NEEDS,
+        waiting_on="simulator: effects",
+        prepare=_warm_lbl,
+    )
+)
+
 # --------------------------------------------------------------------------- Oren-Nayar quadrature
 _ON_CASES = ({"rho": 0.5, "sigma": 0.3}, {"rho": 0.8, "sigma": 1.0})
 
@@ -1402,5 +1463,76 @@ register_knob(
         unit="corrections",
         needs=("gonio.simulator.effects", "gonio.campaign.knowledge"),
         waiting_on="the simulator's effects (gonio.simulator.effects)",
+    )
+)
+
+
+# --------------------------------------------------------------------------- realistic vs ideal
+#: the instrument knob's settings: the ideal instrument, the realistic one calibrated by its
+#: own calibration captures (the default campaign), and the realistic one with a kept
+#: calibration folder (what a laboratory does between campaigns)
+INSTRUMENT_SETTINGS = ("ideal", "modern", "modern+calibration_folder")
+
+
+def _lab_folder() -> str:
+    """A calibration folder of the modern preset's instrument 0 (made once, untimed)."""
+
+    def make() -> str:
+        import atexit
+        import shutil
+        import tempfile
+
+        from gonio.campaign import Plan, run
+
+        d = tempfile.mkdtemp(prefix="gonio-bench-lab-")
+        atexit.register(shutil.rmtree, d, True)
+        run(Plan(material=LBL_MATERIAL, preset="modern", plots=False, theta_i_deg=(20.0,)),
+            os.path.join(d, "campaign"), workers=1)  # fmt: skip
+        return os.path.join(d, "campaign", "calibration")
+
+    return REFERENCES.get("lab_folder", make)
+
+
+def _knob_instrument(setting: str, seed: int) -> dict[str, float]:
+    """A 7-θi rolled-brass campaign (one process) on the ideal or the realistic instrument;
+    the time is the campaign's, the calibration captures and the budget included."""
+    from gonio import materials
+    from gonio.campaign import Plan, run
+
+    if setting not in INSTRUMENT_SETTINGS:
+        raise ValueError(f"lbl_instrument setting {setting!r}; expected {INSTRUMENT_SETTINGS}")
+    preset, _, folder = setting.partition("+")
+    plan = Plan(material=LBL_MATERIAL, preset=preset, seed=seed, plots=False,
+                theta_i_deg=tuple(float(a) for a in np.linspace(0.0, 78.0, 7)),
+                calibration=_lab_folder() if folder else None)  # fmt: skip
+    r = run(plan, workers=1)
+    truth = materials.get(LBL_MATERIAL)
+    out = brdf_errors(truth, r.fit.model)
+    tim = r.summary["timings_s"]
+    out["calibration_s"] = float(tim.get("calibration", 0.0))
+    out["budget_s"] = float(tim.get("budget", 0.0))
+    return out
+
+
+def _warm_instrument_knob() -> None:
+    _warm_lbl()
+    _lab_folder()
+
+
+register_knob(
+    Knob(
+        "lbl_instrument",
+        "a 7-θi rolled-brass campaign in one process on the ideal instrument, on the "
+        "realistic one (modern preset) with its calibration captures, and with a kept "
+        "calibration folder: what realism costs, where (calibration_s, budget_s), and "
+        "the error it brings",
+        settings=INSTRUMENT_SETTINGS,
+        quick_settings=("ideal", "modern"),
+        run=_knob_instrument,
+        primary="max_rel_err",
+        unit="instrument",
+        needs=("gonio.simulator.effects", "gonio.campaign.knowledge"),
+        waiting_on="the simulator's effects (gonio.simulator.effects)",
+        prepare=_warm_instrument_knob,
     )
 )

@@ -132,3 +132,20 @@ def test_pareto_plot(tmp_path):
     rep = bench.run_bench(["noise_level"], quick=True, ablations=False)
     p = bench.plot_pareto(rep, tmp_path / "p.png")
     assert p.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_effect_magnitude_and_instrument_knob_settings():
+    from gonio.simulator.effects import PRESETS, check_magnitudes
+
+    settings = bench.KNOBS["lbl_effect_magnitude"].settings
+    assert settings[0] == "ideal"
+    for s in settings[1:]:  # every setting a valid magnitude of an effect of the preset
+        name, scale = s.split("*")
+        assert float(scale) in bench.EFFECT_SCALES
+        check_magnitudes({name: float(scale) * PRESETS["modern"][name].typical})
+    assert {"veiling_glare*0.5", "veiling_glare*2"} <= set(settings)
+    with pytest.raises(ValueError, match="expected 'effect\\*scale'"):
+        bench._knob_effect_magnitude("no_such_effect*2", 0)
+    assert bench.KNOBS["lbl_instrument"].settings == bench.INSTRUMENT_SETTINGS
+    with pytest.raises(ValueError, match="lbl_instrument setting"):
+        bench._knob_instrument("perfect", 0)
