@@ -1178,7 +1178,7 @@ register_knob(
         "uncorrected, through capture → eq. 2 → fit (rolled brass, θi = 20, 50°): how its "
         "error and its cost grow with its magnitude",
         settings=_MAGNITUDE_SETTINGS,
-        quick_settings=("ideal", "veiling_glare*0.5", "veiling_glare*2"),
+        quick_settings=("veiling_glare*2",),
         run=_knob_effect_magnitude,
         primary="max_rel_err",
         unit="effect*scale",
@@ -1423,13 +1423,27 @@ CORRECTION_SETTINGS = (
 )  # fmt: skip
 
 
+def _seven_angle_campaign(
+    seed: int, out: str | None = None, **plan_kw: Any
+) -> tuple[Any, dict[str, float]]:
+    """A rolled-brass campaign on 7 incidences (0-78°) in one process, no plots (results
+    folder ``out``, default none): its result and the fit's :func:`brdf_errors`."""
+    from gonio import materials
+    from gonio.campaign import Plan, run
+
+    plan = Plan(material=LBL_MATERIAL, seed=seed, plots=False,
+                theta_i_deg=tuple(float(a) for a in np.linspace(0.0, 78.0, 7)),
+                **plan_kw)  # fmt: skip
+    r = run(plan, out, workers=1)
+    return r, brdf_errors(materials.get(LBL_MATERIAL), r.fit.model)
+
+
 def _knob_corrections(setting: str, seed: int) -> dict[str, float]:
     """A realistic (``modern``) rolled-brass campaign on 7 incidences with the laboratory's
     corrections (:data:`gonio.campaign.knowledge.CORRECTIONS`) all on, one left out, or
     none: the fit's errors, and the largest error in units of the reported expanded
     uncertainty (``max_err_over_U`` <= 1: the budget covers the error)."""
     from gonio import materials
-    from gonio.campaign import Plan, run
     from gonio.campaign.knowledge import CORRECTIONS
 
     if setting == "all":
@@ -1438,12 +1452,8 @@ def _knob_corrections(setting: str, seed: int) -> dict[str, float]:
         corr = ()
     else:
         corr = tuple(c for c in CORRECTIONS if c != setting.lstrip("-"))
-    plan = Plan(material=LBL_MATERIAL, preset="modern", seed=seed, plots=False,
-                theta_i_deg=tuple(float(a) for a in np.linspace(0.0, 78.0, 7)),
-                corrections=corr)  # fmt: skip
-    r = run(plan, workers=1)
+    r, out = _seven_angle_campaign(seed, preset="modern", corrections=corr)
     truth = materials.get(LBL_MATERIAL)
-    out = brdf_errors(truth, r.fit.model)
     u = r.summary["budget"]["expanded"]
     ratios = [abs(r.fit.params[k] - truth.params[k]) / u[k] for k in u if u[k] > 0]
     out["max_err_over_U"] = float(max(ratios))
@@ -1474,65 +1484,61 @@ register_knob(
 INSTRUMENT_SETTINGS = ("ideal", "modern", "modern+calibration_folder")
 
 
-def _lab_folder() -> str:
-    """A calibration folder of the modern preset's instrument 0 (made once, untimed)."""
+def _bench_dir() -> str:
+    """A temporary folder for the instrument knob's campaigns (removed at exit)."""
 
     def make() -> str:
         import atexit
         import shutil
         import tempfile
 
-        from gonio.campaign import Plan, run
-
-        d = tempfile.mkdtemp(prefix="gonio-bench-lab-")
+        d = tempfile.mkdtemp(prefix="gonio-bench-")
         atexit.register(shutil.rmtree, d, True)
-        run(Plan(material=LBL_MATERIAL, preset="modern", plots=False, theta_i_deg=(20.0,)),
-            os.path.join(d, "campaign"), workers=1)  # fmt: skip
-        return os.path.join(d, "campaign", "calibration")
+        return d
 
-    return REFERENCES.get("lab_folder", make)
+    return REFERENCES.get("bench_dir", make)
 
 
 def _knob_instrument(setting: str, seed: int) -> dict[str, float]:
     """A 7-θi rolled-brass campaign (one process) on the ideal or the realistic instrument;
     the time is the campaign's, the calibration captures and the budget included."""
-    from gonio import materials
-    from gonio.campaign import Plan, run
-
     if setting not in INSTRUMENT_SETTINGS:
         raise ValueError(f"lbl_instrument setting {setting!r}; expected {INSTRUMENT_SETTINGS}")
+    import shutil
+
     preset, _, folder = setting.partition("+")
-    plan = Plan(material=LBL_MATERIAL, preset=preset, seed=seed, plots=False,
-                theta_i_deg=tuple(float(a) for a in np.linspace(0.0, 78.0, 7)),
-                calibration=_lab_folder() if folder else None)  # fmt: skip
-    r = run(plan, workers=1)
-    truth = materials.get(LBL_MATERIAL)
-    out = brdf_errors(truth, r.fit.model)
+    # the kept folder: the calibration the "modern" row's campaign of this seed (the same
+    # physical instrument) wrote; the rows run in the order of the settings
+    lab = os.path.join(_bench_dir(), f"lab-{seed}")
+    if folder and not os.path.isdir(lab):
+        raise ValueError("lbl_instrument: the calibration-folder row needs the modern row first")
+    out_dir = os.path.join(_bench_dir(), f"{setting}-{seed}")
+    shutil.rmtree(out_dir, ignore_errors=True)
+    r, out = _seven_angle_campaign(seed, out_dir, preset=preset,
+                                   calibration=lab if folder else None)  # fmt: skip
+    if preset == "modern" and not folder and not os.path.isdir(lab):
+        shutil.copytree(os.path.join(out_dir, "calibration"), lab)
     tim = r.summary["timings_s"]
     out["calibration_s"] = float(tim.get("calibration", 0.0))
     out["budget_s"] = float(tim.get("budget", 0.0))
     return out
 
 
-def _warm_instrument_knob() -> None:
-    _warm_lbl()
-    _lab_folder()
-
-
 register_knob(
     Knob(
         "lbl_instrument",
-        "a 7-θi rolled-brass campaign in one process on the ideal instrument, on the "
-        "realistic one (modern preset) with its calibration captures, and with a kept "
-        "calibration folder: what realism costs, where (calibration_s, budget_s), and "
-        "the error it brings",
+        "a 7-θi rolled-brass campaign in one process, results folder written, on the ideal "
+        "instrument, on the realistic one (modern preset) with its calibration captures, "
+        "and with the calibration folder that campaign wrote kept (what a laboratory does "
+        "between campaigns): what realism costs, where (calibration_s, budget_s), and the "
+        "error it brings",
         settings=INSTRUMENT_SETTINGS,
-        quick_settings=("ideal", "modern"),
+        quick_settings=("modern",),
         run=_knob_instrument,
         primary="max_rel_err",
         unit="instrument",
         needs=("gonio.simulator.effects", "gonio.campaign.knowledge"),
         waiting_on="the simulator's effects (gonio.simulator.effects)",
-        prepare=_warm_instrument_knob,
+        prepare=_warm_lbl,
     )
 )
