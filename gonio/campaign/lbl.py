@@ -5,9 +5,11 @@ gonioreflectometer and reads top to bottom:
 
 1. **prepare** — the plan resolved and validated, the results folder checked and its
    ``plan.json`` written (:mod:`gonio.campaign.folder`), the instrument made;
-2. **capture and reduce** — each incidence angle captured (standard, background, the sample at
-   every rotation), saved and reduced to samples (:func:`_incidence`, on the executor's
-   worker processes);
+2. **capture and reduce** — a realistic simulated instrument's calibration captures and the
+   laboratory's calibration from them first (:func:`_laboratory`, its independent jobs on
+   the executor's processes), then each incidence angle captured (standard, background, the
+   sample at every rotation), saved and reduced to samples (:func:`_incidence`, on the
+   executor's worker processes);
 3. **fit** — the plan's model and the compared ones fitted to all samples (:func:`_fit`);
 4. **report** — the summary against the truth, ``fit.json``, ``material.rad``, the plots and
    ``summary.json`` (:mod:`gonio.campaign.report`).
