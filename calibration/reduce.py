@@ -635,6 +635,76 @@ def reduce_selected(
     t0 = time.perf_counter()
     if certificate is not None and rho_standard is None:
         rho_standard = float(certificate.rho)
+    meta, shape, rho_standard = _check_selected(
+        measured, standard, background, rho_standard, base_level, peak_level, peak_fraction
+    )
+    gen = np.random.default_rng(rng)
+    lens_obj, mirror, wo_dome, gvalid, theta_i, phi_i, rotation = _scene(
+        meta, shape, lens, mirror, method
+    )
+    h, w = shape
+    geo = _selection_geometry(wo_dome, gvalid, rotation)
+    bg0 = _darkest_signal(background)[geo.cand]
+    num = _darkest_signal(measured)[geo.cand] - bg0
+    den = _darkest_signal(standard)[geo.cand] - bg0
+    pick = _select(geo, num, den, base_level, peak_level, peak_fraction, gen)
+    sel = geo.cand[pick]
+    t1 = time.perf_counter()
+
+    nb = _Neighbourhood.of(sel, h, w)
+    ms, ratio_at = _merge_selected((measured, standard, background), nb, gvalid, glare)
+    t2 = time.perf_counter()
+    refl = eq2(ms[0], ms[1], ms[2], rho_standard, threshold=threshold, ratio_at=ratio_at,
+               debias=debias)  # fmt: skip
+    keep = refl.mask[0]
+    if certificate is not None:
+        keep = keep & _certified(refl, certificate, standard, theta_i, wo_dome.reshape(-1, 3)[sel])
+    if not keep.any():
+        raise ValueError(
+            f"no selected pixel survived eq. 2 masking (θi {math.degrees(theta_i):.2f}°, "
+            f"φi {math.degrees(phi_i):.2f}°, rotation {math.degrees(rotation):.2f}°, "
+            f"{sel.size} selected): every standard pixel is saturated or not significantly "
+            "above the background — check exposures"
+        )
+    wo = geo.wo[pick][keep]
+    value = refl.value[0][keep]
+    sigma = refl.sigma[0][keep]
+    samples = _table(wo, value, sigma, meta, theta_i, phi_i, method, rho_standard, mirror,
+                     lens_obj, "gonio.calibration.reduce_selected")  # fmt: skip
+    t3 = time.perf_counter()
+    stats = {
+        "theta_i": theta_i,
+        "phi_i": phi_i,
+        "sample_rotation": rotation,
+        "nonlinear_camera": False,
+        "n_pixels": int(h * w),
+        "n_geometry_valid": int(geo.cand.size),
+        "n_selected": int(sel.size),
+        "n_merged": int(nb.region.size),
+        "n_masked_eq2": int(sel.size - np.count_nonzero(keep)),
+        "n_before": int(geo.cand.size),
+        "n_after": len(samples),
+        "thinning": {
+            "mode": "select",
+            "base_level": int(base_level),
+            "peak_level": int(peak_level),
+            "peak_fraction": float(peak_fraction),
+        },
+        "timings_s": {"select": t1 - t0, "merge": t2 - t1, "eq2": t3 - t2, "total": t3 - t0},
+    }
+    vv, uu = np.divmod(sel[keep], w)
+    wi = to_vector(theta_i, phi_i)
+    pixels = {"wo": wo, "value": value, "sigma": sigma, "uv": np.stack([uu, vv], 1), "wi": wi}
+    return ReductionResult(samples, pixels, None, stats)
+
+
+def _check_selected(
+    measured: Capture, standard: Capture, background: Capture, rho_standard: float | None,
+    base_level: int, peak_level: int, peak_fraction: float,
+) -> tuple[dict[str, Any], tuple[int, ...], float]:  # fmt: skip
+    """:func:`reduce_selected`'s input checks: the triple (side-cars against images), a
+    linear camera, the cell levels and ``peak_fraction``; returns the measured side-car,
+    the image shape and ρ of the standard."""
     meta, shape, rho_standard = _check_triple(measured, standard, background, rho_standard)
     for name, c in (("measured", measured), ("standard", standard), ("background", background)):
         if not is_linear(c.meta):
@@ -646,114 +716,89 @@ def reduce_selected(
         raise ValueError(f"peak_level ({peak_level}) must be >= base_level ({base_level})")
     if not (0.0 < float(peak_fraction) < 1.0):
         raise ValueError(f"peak_fraction must be in (0, 1), got {peak_fraction!r}")
-    gen = np.random.default_rng(rng)
-    lens_obj, mirror, wo_dome, gvalid, theta_i, phi_i, rotation = _scene(
-        meta, shape, lens, mirror, method
-    )
-    h, w = shape
-    geo = _selection_geometry(wo_dome, gvalid, rotation)
-    cand, wo_all = geo.cand, geo.wo
-    bg0 = _darkest_signal(background)[cand]
-    num = _darkest_signal(measured)[cand] - bg0
-    den = _darkest_signal(standard)[cand] - bg0
-    pick = _select(geo, num, den, base_level, peak_level, peak_fraction, gen)
-    sel = cand[pick]
-    t1 = time.perf_counter()
+    return meta, shape, rho_standard
 
-    # the selected pixels and their 8-neighbours (inside the image)
-    r, c = np.divmod(sel, w)
-    offs = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
-    nbr = np.stack([r + dr for dr, _ in offs], 1)
-    nbc = np.stack([c + dc for _, dc in offs], 1)
-    inside = (nbr >= 0) & (nbr < h) & (nbc >= 0) & (nbc < w)
-    nb_flat = np.where(inside, nbr * w + nbc, sel[:, None])
-    mark = np.zeros(h * w, dtype=bool)
-    mark[sel] = True
-    mark[nb_flat] = True
-    region = np.flatnonzero(mark)
-    lut = np.empty(h * w, dtype=np.int64)
-    lut[region] = np.arange(region.size)
-    pos_nb = lut[nb_flat]
 
-    def merged(cap: Capture, at: NDArray | None = None, idx: NDArray = region) -> Measurement:
-        imgs = [np.asarray(a).ravel()[idx][None, :] for a in cap.images]
-        darks = None
-        if cap.darks is not None:
-            darks = [None if d is None else np.asarray(d).ravel()[idx][None, :] for d in cap.darks]
-        return merge_linear(imgs, cap.metas, darks, variance_at=None if at is None else at[None, :])
+@dataclass(frozen=True)
+class _Neighbourhood:
+    """The selected pixels and their 8-neighbours inside the image: ``region`` (flat indices
+    of every pixel merged), ``pos`` (each neighbour's position in ``region``, (n, 8)),
+    ``inside`` (the neighbour lies in the image, (n, 8)) and ``sel``."""
 
-    def nb_mean(x: NDArray, ok: NDArray) -> NDArray:
-        use = ok[pos_nb] & inside
+    sel: NDArray[np.int64]
+    region: NDArray[np.int64]
+    pos: NDArray[np.int64]
+    inside: NDArray[np.bool_]
+
+    @classmethod
+    def of(cls, sel: NDArray[np.int64], h: int, w: int) -> _Neighbourhood:
+        r, c = np.divmod(sel, w)
+        offs = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
+        nbr = np.stack([r + dr for dr, _ in offs], 1)
+        nbc = np.stack([c + dc for _, dc in offs], 1)
+        inside = (nbr >= 0) & (nbr < h) & (nbc >= 0) & (nbc < w)
+        nb_flat = np.where(inside, nbr * w + nbc, sel[:, None])
+        mark = np.zeros(h * w, dtype=bool)
+        mark[sel] = True
+        mark[nb_flat] = True
+        region = np.flatnonzero(mark)
+        lut = np.empty(h * w, dtype=np.int64)
+        lut[region] = np.arange(region.size)
+        return cls(sel, region, lut[nb_flat], inside)
+
+    def mean(self, x: NDArray, ok: NDArray) -> NDArray:
+        """Mean of ``x`` (over ``region``) over each selected pixel's usable neighbours
+        (NaN where none is usable)."""
+        use = ok[self.pos] & self.inside
         cnt = use.sum(1)
-        s = np.where(use, x[pos_nb], 0.0).sum(1)
+        s = np.where(use, x[self.pos], 0.0).sum(1)
         return np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
 
-    reg_ok = gvalid.ravel()[region]
-    mr = {k: merged(cap) for k, cap in (("m", measured), ("s", standard), ("b", background))}
-    ests = {k: nb_mean(m.value[0], m.valid[0] & reg_ok) for k, m in mr.items()}
-    ms = {
-        k: merged(cap, ests[k], sel)
-        for k, cap in (("m", measured), ("s", standard), ("b", background))
-    }
-    ok_all = mr["m"].valid[0] & mr["s"].valid[0] & mr["b"].valid[0] & reg_ok
-    num_r = mr["m"].value[0] - mr["b"].value[0]
-    den_r = mr["s"].value[0] - mr["b"].value[0]
+
+def _merged(cap: Capture, idx: NDArray, at: NDArray | None = None) -> Measurement:
+    """The bracket of ``cap`` merged at the flat pixels ``idx`` (variance at ``at``)."""
+    imgs = [np.asarray(a).ravel()[idx][None, :] for a in cap.images]
+    darks = None
+    if cap.darks is not None:
+        darks = [None if d is None else np.asarray(d).ravel()[idx][None, :] for d in cap.darks]
+    return merge_linear(imgs, cap.metas, darks, variance_at=None if at is None else at[None, :])
+
+
+def _merge_selected(
+    caps: tuple[Capture, Capture, Capture], nb: _Neighbourhood, gvalid: NDArray,
+    glare: tuple[Any, Any] | None,
+) -> tuple[list[Measurement], tuple[NDArray, NDArray]]:  # fmt: skip
+    """The measured, standard and background brackets merged at the selected pixels, each
+    pixel's variance evaluated at its neighbours' mean signal (a pixel's own reading biases
+    a weighted fit low), with the veils removed; and the neighbours' mean numerator and
+    denominator of eq. 2 (its ``ratio_at``)."""
+    reg_ok = gvalid.ravel()[nb.region]
+    mr = [_merged(cap, nb.region) for cap in caps]
+    ests = [nb.mean(m.value[0], m.valid[0] & reg_ok) for m in mr]
+    ms = [_merged(cap, nb.sel, est) for cap, est in zip(caps, ests)]
+    ok_all = mr[0].valid[0] & mr[1].valid[0] & mr[2].valid[0] & reg_ok
+    num_r = mr[0].value[0] - mr[2].value[0]
+    den_r = mr[1].value[0] - mr[2].value[0]
     if glare is not None:  # the veils of the sample's and the standard's own light
         g_m, g_s = (np.asarray(x, dtype=np.float64) for x in glare)
         if g_m.ndim:  # per-pixel veils (flat images)
-            num_r, den_r = num_r - g_m[region], den_r - g_s[region]
-            ms["m"].value -= g_m[sel]
-            ms["s"].value -= g_s[sel]
+            num_r, den_r = num_r - g_m[nb.region], den_r - g_s[nb.region]
+            ms[0].value -= g_m[nb.sel]
+            ms[1].value -= g_s[nb.sel]
         else:
             num_r, den_r = num_r - g_m, den_r - g_s
-            ms["m"].value -= g_m
-            ms["s"].value -= g_s
-    ratio_at = (nb_mean(num_r, ok_all)[None, :], nb_mean(den_r, ok_all)[None, :])
-    t2 = time.perf_counter()
-    refl = eq2(ms["m"], ms["s"], ms["b"], rho_standard, threshold=threshold, ratio_at=ratio_at,
-               debias=debias)  # fmt: skip
-    keep = refl.mask[0]
-    if certificate is not None:
-        wo_std = wo_dome.reshape(-1, 3)[sel]
-        fac, covered = standard_factor(certificate, standard, theta_i, wo_std)
-        keep = keep & covered
-        # eq. 2's standard is ρR/π, not ρ/π: the ratio times the certified factor
-        refl.value[0] = np.where(covered, refl.value[0] * fac, 0.0)
-        refl.sigma[0] = np.where(covered, refl.sigma[0] * fac, 0.0)
-    if not keep.any():
-        raise ValueError(
-            f"no selected pixel survived eq. 2 masking (θi {math.degrees(theta_i):.2f}°, "
-            f"φi {math.degrees(phi_i):.2f}°, rotation {math.degrees(rotation):.2f}°, "
-            f"{sel.size} selected): every standard pixel is saturated or not significantly "
-            "above the background — check exposures"
-        )
-    wo = wo_all[pick][keep]
-    value = refl.value[0][keep]
-    sigma = refl.sigma[0][keep]
-    samples = _table(wo, value, sigma, meta, theta_i, phi_i, method, rho_standard, mirror,
-                     lens_obj, "gonio.calibration.reduce_selected")  # fmt: skip
-    t3 = time.perf_counter()
-    vv, uu = np.divmod(sel[keep], w)
-    stats = {
-        "theta_i": theta_i,
-        "phi_i": phi_i,
-        "sample_rotation": rotation,
-        "nonlinear_camera": False,
-        "n_pixels": int(h * w),
-        "n_geometry_valid": int(cand.size),
-        "n_selected": int(sel.size),
-        "n_merged": int(region.size),
-        "n_masked_eq2": int(sel.size - np.count_nonzero(keep)),
-        "n_before": int(cand.size),
-        "n_after": len(samples),
-        "thinning": {
-            "mode": "select",
-            "base_level": int(base_level),
-            "peak_level": int(peak_level),
-            "peak_fraction": float(peak_fraction),
-        },
-        "timings_s": {"select": t1 - t0, "merge": t2 - t1, "eq2": t3 - t2, "total": t3 - t0},
-    }
-    wi = to_vector(theta_i, phi_i)
-    pixels = {"wo": wo, "value": value, "sigma": sigma, "uv": np.stack([uu, vv], 1), "wi": wi}
-    return ReductionResult(samples, pixels, None, stats)
+            ms[0].value -= g_m
+            ms[1].value -= g_s
+    return ms, (nb.mean(num_r, ok_all)[None, :], nb.mean(den_r, ok_all)[None, :])
+
+
+def _certified(
+    refl: Reflectance, certificate: Any, standard: Capture, theta_i: float, wo_std: NDArray
+) -> NDArray[np.bool_]:
+    """Eq. 2's standard as ``ρR/π``, not ``ρ/π``: ``refl`` (one row) times the certified
+    factor at the selected pixels' directions ``wo_std``, in place; returns where the
+    certificate covers them (0 elsewhere)."""
+    fac, covered = standard_factor(certificate, standard, theta_i, wo_std)
+    refl.value[0] = np.where(covered, refl.value[0] * fac, 0.0)
+    refl.sigma[0] = np.where(covered, refl.sigma[0] * fac, 0.0)
+    return covered
