@@ -157,7 +157,11 @@ def reduce_incidence(
         dark = dark_region(std, bg, gvalid)
     g_s = None
     if dark is not None:
-        shape = veil_shape(bg, gvalid, field_angle(lens))
+        fac = None
+        if "certificate" in opts:  # the standard's certified factor at each pixel
+            wo_dome, _ = pixel_geometry(lens, opts["mirror"], opts.get("method", "eq3"))
+            fac = _certified_image(opts["certificate"], std, wo_dome, gvalid)
+        shape = veil_shape(bg, gvalid, field_angle(lens), standard=std, factor=fac)
         g_s = glare_offset(std, bg, dark)
     out = []
     for rot, frames in measured.items():
@@ -178,6 +182,19 @@ def reduce_incidence(
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
         info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
         out.append((red.samples, info))
+    return out
+
+
+def _certified_image(cert: Any, std: Any, wo_dome: np.ndarray, gvalid: np.ndarray) -> np.ndarray:
+    """The standard's certified reflectance factor at every pixel that sees the sample
+    (flat; 1 elsewhere and where the certificate does not reach)."""
+    from gonio.calibration.consistency import sidecar_angle
+    from gonio.calibration.reduce import standard_factor
+
+    idx = np.flatnonzero(np.asarray(gvalid).ravel())
+    out = np.ones(np.asarray(gvalid).size)
+    theta_i = sidecar_angle(std.meta, "theta_i", "standard metadata")
+    out[idx] = standard_factor(cert, std, theta_i, wo_dome.reshape(-1, 3)[idx])[0]
     return out
 
 

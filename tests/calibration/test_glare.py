@@ -32,9 +32,9 @@ def test_the_veil_is_measured_where_no_sample_light_arrives():
     std_sig = amb + 2000.0 * resp * light + 40.0 * resp  # 40 DN of veil at the centre
     meas_sig = amb + 900.0 * resp * light + 15.0 * resp
     std, bg, meas = _cap(std_sig, rng), _cap(amb, rng), _cap(meas_sig, rng)
-    dark = dark_region(std, bg, field)
+    dark = dark_region(std, bg, field, margin=2)
     assert dark is not None and set(dark) <= set(np.flatnonzero(occluded.ravel()))
-    assert dark.size > 0.9 * occluded.sum()
+    assert dark.size > 0.9 * (occluded & (u < 20)).sum()
     scale = 0.01 / 4.0**2
     g_s, g_m = glare_offset(std, bg, dark), glare_offset(meas, bg, dark)
     mean_resp_dark = resp.ravel()[dark].mean()
@@ -46,6 +46,28 @@ def test_the_veil_is_measured_where_no_sample_light_arrives():
     assert centre == pytest.approx(15.0, rel=0.08)  # the veil's full height at the centre
 
 
+def test_the_blurred_edge_of_the_occluder_is_left_out():
+    """A bright lobe beside the occluder lights its first pixels (the point-spread
+    function): with every dark pixel the veil reads high, beyond the margin it is right."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(3)
+    h, w = 120, 160
+    v, u = np.mgrid[:h, :w]
+    field = np.hypot(u - 80, v - 60) <= 58
+    occluded = field & (u < 60)
+    lit = np.where(field & ~occluded, 1.0, 0.0)
+    lobe = 60000.0 * np.exp(-0.5 * (((u - 64) / 3.0) ** 2 + ((v - 60) / 6.0) ** 2)) * lit
+    std_sig = 2000.0 * lit + 20.0 * field
+    meas_sig = gaussian_filter(200.0 * lit + lobe, 1.5) * field + 10.0 * field
+    std, bg, meas = _cap(std_sig, rng), _cap(np.zeros((h, w)), rng), _cap(meas_sig, rng)
+    scale = 0.01 / 4.0**2
+    near = glare_offset(meas, bg, dark_region(std, bg, field, margin=0)).value * scale
+    far = glare_offset(meas, bg, dark_region(std, bg, field)).value * scale
+    assert near > 10.5  # the lobe's blurred edge
+    assert far == pytest.approx(10.0, abs=0.15)
+
+
 def test_no_dark_region_and_bad_fraction():
     rng = np.random.default_rng(1)
     field = np.ones((20, 20), bool)
@@ -53,6 +75,8 @@ def test_no_dark_region_and_bad_fraction():
     assert dark_region(std, bg, field) is None
     with pytest.raises(ValueError, match="fraction"):
         dark_region(std, bg, field, fraction=1.5)
+    with pytest.raises(ValueError, match="margin"):
+        dark_region(std, bg, field, margin=-1)
 
 
 def test_certificate_factor_multiplies_eq2():
@@ -84,3 +108,27 @@ def test_certificate_factor_multiplies_eq2():
              for x in ("rolled_brass", "standard", None)]  # fmt: skip
     with pytest.raises(ValueError, match="covered"):
         reduce_selected(*steep, rng=1, certificate=Flat())
+
+
+def test_the_veil_shape_from_the_standard_ignores_the_beams_glow():
+    """Near normal incidence the beam's glow on the dome fills the background's central
+    rings; the shape read from the standard's light (over its certified factor) does not
+    see it, the background's does."""
+    rng = np.random.default_rng(4)
+    h, w = 120, 160
+    v, u = np.mgrid[:h, :w]
+    r = np.hypot(u - 80, v - 60) / 58.0
+    field = r <= 1.0
+    resp = np.where(field, 1.0 - 0.2 * r**2, 0.0)
+    glow = 60.0 * np.exp(-0.5 * (r / 0.15) ** 2) * field
+    factor = 1.0 + 0.1 * r**2  # the standard's certified reflectance factor
+    bg = _cap(3.0 * resp + glow, rng)
+    std = _cap(3.0 * resp + glow + 2500.0 * resp * factor, rng)
+    th = (r * math.pi / 2).ravel()
+    want = np.where(field, resp, 0.0).ravel()
+    want = want / want[field.ravel()].mean()
+    centre = field.ravel() & (r.ravel() < 0.2)
+    from_bg = veil_shape(bg, field, th)
+    from_std = veil_shape(bg, field, th, standard=std, factor=factor.ravel())
+    assert from_bg[centre].mean() > 2.0 * want[centre].mean()
+    assert np.allclose(from_std[field.ravel()], want[field.ravel()], rtol=0.02)
