@@ -68,6 +68,10 @@ class LabCalibration:
         statement of the build; empty for an ideal instrument).
     info : dict
         Provenance (what was captured, times).
+    sensor : dict or None
+        The sensor's saturation threshold from the photon-transfer captures
+        (:func:`gonio.calibration.photon_transfer.saturation_level`); None: the side-cars'
+        ``saturation_dn``.
     """
 
     lens: dict[str, Any] | None = None
@@ -76,6 +80,7 @@ class LabCalibration:
     certificate: Any = None
     specification: dict[str, dict[str, Any]] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    sensor: dict[str, Any] | None = None
 
     def lens_model(self) -> Any:
         """The calibrated :class:`~gonio.simulator.lenses.FisheyeLens` (or None)."""
@@ -119,6 +124,7 @@ class LabCalibration:
             "certificate": cert,
             "specification": self.specification,
             "info": self.info,
+            "sensor": self.sensor,
         }
 
     @classmethod
@@ -140,6 +146,7 @@ class LabCalibration:
             certificate=cert,
             specification=dict(d.get("specification") or {}),
             info=dict(d.get("info") or {}),
+            sensor=None if d.get("sensor") is None else dict(d["sensor"]),
         )
 
     def write(self, folder: str | os.PathLike) -> Path:

@@ -61,6 +61,9 @@ LADDER_STOPS = (32.0, 22.0, 16.0, 11.0, 8.0, 5.6, 4.0, 2.8, 2.0)
 LADDER_REPEATS = 6
 #: exposure at the widest ladder stop (the others scale with the marked N²)
 LADDER_EXPOSURE_S = 0.004
+#: photons per pixel of the saturated flat field: the sphere turned up far past any full well
+#: (a few 10^5 electrons for the largest pixels), so that every pixel clips
+SATURATING_PHOTONS = 1.0e7
 
 _CACHE: dict[str, Any] = {}
 
@@ -156,7 +159,14 @@ def take_captures(inst: Any, *, seed: int = 0, parallel: Parallel | None = None)
         views = _CACHE[key] = got[0] + got[1]
         got = got[2:]
     spots, ladder = got
-    return {"board": views, "mirror": spots, "ladder": ladder}
+    out = {"board": views, "mirror": spots, "ladder": ladder}
+    if hasattr(inst, "capture_flat"):  # photon transfer: a dark frame, a flat past full well
+        kw = {"exposure": LADDER_EXPOSURE_S}
+        out["photon_transfer"] = {
+            "dark": inst.capture_dark(rng=int(gen.integers(2**62)), **kw),
+            "flat": inst.capture_flat(SATURATING_PHOTONS, rng=int(gen.integers(2**62)), **kw),
+        }
+    return out
 
 
 def calibrate(
@@ -233,6 +243,12 @@ def calibrate(
     nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
     mirror = fit_mirror(uv, dirs, lens, nominal, method=method)
     fstops = got.get("fstops")
+    sensor = None
+    if captures.get("photon_transfer"):
+        from gonio.calibration.photon_transfer import saturation_level
+
+        (flat, flat_meta), (dark, _) = (captures["photon_transfer"][k] for k in ("flat", "dark"))
+        sensor = saturation_level(flat, flat_meta, dark)
     info = {"lens_rms_px": lens_cal.rms, "lens_views": lens_cal.n_views,
             "mirror_rms_deg": mirror.rms_deg, "mirror_points": mirror.n_points}  # fmt: skip
     pitch = captures["mirror"][0][2].get("sensor", {}).get("pixel_pitch_m")
@@ -247,6 +263,7 @@ def calibrate(
         certificate=certificate,
         specification={k: dict(v) for k, v in (specification or {}).items()},
         info=info,
+        sensor=sensor,
     )
 
 

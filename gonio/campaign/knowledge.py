@@ -18,7 +18,12 @@ captures with the laboratory's calibration
     the marked ones;
 ``glare``
     the veil measured in the image's known-dark region subtracted from the sample's and the
-    standard's signals.
+    standard's signals;
+``saturation``
+    the saturation threshold measured on the laboratory's own saturated flat field
+    (:mod:`gonio.calibration.photon_transfer`) instead of the side-car's nominal
+    ``saturation_dn``, below which half of the realistic sensor's charge-clipped readings
+    lie.
 
 :func:`campaign_budget` then builds the fit's uncertainty budget from the same knowledge
 (:mod:`gonio.campaign.budget`, :mod:`gonio.campaign.budget_terms`).
@@ -44,7 +49,7 @@ __all__ = [
 ]
 
 #: the corrections a laboratory applies (each ablatable)
-CORRECTIONS = ("geometry", "standard", "exposure", "glare")
+CORRECTIONS = ("geometry", "standard", "exposure", "glare", "saturation")
 
 #: side-car fields a real instrument writes (everything else is the simulator's truth):
 #: the exposure and the marked f-number, the commanded incidence and rotation, the campaign
@@ -74,16 +79,32 @@ def check_corrections(corrections: Iterable[str] | None) -> tuple[str, ...]:
     return got
 
 
-def laboratory_view(frames: Sequence[tuple[Any, Mapping[str, Any]]]) -> list[tuple[Any, dict]]:
-    """The frames with side-cars cut down to what a real instrument records."""
+def laboratory_view(
+    frames: Sequence[tuple[Any, Mapping[str, Any]]], sensor: Mapping[str, Any] | None = None
+) -> list[tuple[Any, dict]]:
+    """The frames with side-cars cut down to what a real instrument records.
+
+    ``sensor``: the laboratory's photon-transfer record
+    (:func:`gonio.calibration.photon_transfer.saturation_level`); its ``saturation_dn``
+    replaces the side-car's in frames read out as its flat field was (same binning).
+    """
     out = []
     for img, meta in frames:  # only the kept fields are read (a test guards the others)
         m = {k: meta[k] for k in meta if k in SIDECAR_FIELDS}
         if "sensor" in meta and isinstance(meta["sensor"], Mapping):
-            sensor = meta["sensor"]
-            m["sensor"] = {k: sensor[k] for k in sensor if k in SENSOR_FIELDS}
+            s = meta["sensor"]
+            m["sensor"] = {k: s[k] for k in s if k in SENSOR_FIELDS}
+            if sensor is not None and _same_binning(meta.get("binning"), sensor.get("binning")):
+                m["sensor"]["saturation_dn"] = float(sensor["saturation_dn"])
         out.append((img, m))
     return out
+
+
+def _same_binning(a: Any, b: Any) -> bool:
+    def norm(x: Any) -> Any:
+        return None if not x or tuple(x) == (0, 0) else tuple(int(v) for v in x)
+
+    return norm(a) == norm(b)
 
 
 def _fstop_corrected(cap: Any, cal: Any) -> tuple[Any, int]:
@@ -135,8 +156,9 @@ def reduce_incidence(
     from gonio.calibration.reduce import Capture, load_lens, pixel_geometry, reduce_selected
 
     corr = set(check_corrections(corrections))
-    std = Capture(laboratory_view(standard))
-    bg = Capture(laboratory_view(background))
+    sat = cal.sensor if cal is not None and "saturation" in corr else None
+    std = Capture(laboratory_view(standard, sat))
+    bg = Capture(laboratory_view(background, sat))
     opts: dict[str, Any] = dict(select or {})
     if nominal is None:
         nominal = {"lens": std.meta.get("lens"), "mirror": std.meta.get("mirror")}
@@ -165,7 +187,7 @@ def reduce_incidence(
         g_s = glare_offset(std, bg, dark)
     out = []
     for rot, frames in measured.items():
-        meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames)), fst)
+        meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames, sat)), fst)
         kw = dict(opts)
         info: dict[str, Any] = {
             "rotation_deg": float(rot),

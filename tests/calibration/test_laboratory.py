@@ -35,6 +35,10 @@ def test_folder_round_trip(tmp_path):
     opts = back.reduction_options()
     assert opts["mirror"] == lab.mirror.geometry and opts["lens"].width == 320
     assert "certificate" not in opts
+    assert back.sensor is None
+    lab.sensor = {"saturation_dn": 4040.0, "binning": None}
+    lab.write(tmp_path / "cal2")
+    assert read_calibration(tmp_path / "cal2").sensor == lab.sensor
 
 
 def test_bad_folders(tmp_path):

@@ -44,8 +44,18 @@ def test_laboratory_view_keeps_what_an_instrument_writes():
     assert m["f_number"] == meta["f_number"] and m["sensor"]["gain_e_per_dn"] > 0
 
 
+def test_the_laboratory_saturation_replaces_the_side_cars_of_frames_read_out_alike():
+    inst = sim.LBLInstrument(width=160, height=120)
+    img, meta = inst.capture("standard", 0.3, 0.0, noise=False)
+    rec = {"saturation_dn": 4040.0, "binning": None}
+    ((_, m),) = laboratory_view([(img, meta)], rec)
+    assert m["sensor"]["saturation_dn"] == 4040.0 != meta["sensor"]["saturation_dn"]
+    ((_, m),) = laboratory_view([(img, meta)], {**rec, "binning": [108, 80]})
+    assert m["sensor"]["saturation_dn"] == meta["sensor"]["saturation_dn"]
+
+
 def test_corrections_are_checked():
-    assert check_corrections(None) == ("geometry", "standard", "exposure", "glare")
+    assert check_corrections(None) == ("geometry", "standard", "exposure", "glare", "saturation")
     assert check_corrections(["glare"]) == ("glare",)
     with pytest.raises(ValueError, match="unknown"):
         check_corrections(["flatfield"])
