@@ -28,6 +28,14 @@ Type B evaluation from the maker's data). Their physics, in the form the reducti
     (:class:`~gonio.calibration.mirror.MirrorCalibration`), split into independent
     components; each moves every pixel's reflection direction, and
     ``δy = f(wo + δwo) − f(wo)`` with the fitted model.
+``lamp_warmup``, ``lamp_drift``
+    The lamp's output ``L(t) = 1 − w e^(−t/τ) + d t`` (warm-up ``w`` with the time constant
+    ``τ`` of :data:`gonio.simulator.lbl_effects.LAMP_WARMUP_TAU_S`, drift ``d`` per hour)
+    changes between a sample's capture at ``t_m`` and its standard's at ``t_s`` (the
+    side-cars' time stamps): eq. 2's ratio is ``L(t_m)/L(t_s)`` too large, so per unit of
+    each ``δy = y (e^(−t_s/τ) − e^(−t_m/τ))`` and ``δy = y (t_m − t_s)/1 h``, with the
+    specification's RMS magnitudes (uncorrected: the same lamp for every sample, a
+    systematic).
 ``blur``
     An image blur of angular RMS ``σ`` per axis (pixel area, diffraction) changes a smooth
     BRDF by ``δy = ½ σ² ∇²f`` (second order of the Gaussian average; the Laplacian on the
@@ -61,6 +69,7 @@ __all__ = [
     "direction_terms",
     "exposure_terms",
     "glare_term",
+    "lamp_terms",
     "mean_over_pixels",
     "reillumination_term",
     "tilt_terms",
@@ -173,6 +182,26 @@ def glare_term(
     note = "residual after the dark-region estimate" if corrected else "uncorrected veil"
     return [Perturbation("veiling_glare", u_glare, "1", ybar - samples.value,
                          corrected=corrected, note=note)]  # fmt: skip
+
+
+def lamp_terms(
+    samples: Any, t_measured: NDArray, t_standard: NDArray, u_warmup: float, u_drift: float
+) -> list[Perturbation]:
+    """The lamp's warm-up and drift between each sample capture (``t_measured``, s) and its
+    standard's (``t_standard``): ``δy`` per unit warm-up and per unit drift (1/h)."""
+    from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
+
+    y = samples.value
+    tm, ts = np.asarray(t_measured, dtype=np.float64), np.asarray(t_standard, dtype=np.float64)
+    out = []
+    if u_warmup > 0:
+        dy = y * (np.exp(-ts / tau) - np.exp(-tm / tau))
+        out.append(Perturbation("lamp_warmup", u_warmup, "1", dy, corrected=False,
+                                note="warm-up, specification"))  # fmt: skip
+    if u_drift > 0:
+        out.append(Perturbation("lamp_drift", u_drift, "1/h", y * (tm - ts) / 3600.0,
+                                corrected=False, note="lamp drift, specification"))  # fmt: skip
+    return out
 
 
 def _tangent(w: NDArray) -> tuple[NDArray, NDArray]:

@@ -203,8 +203,18 @@ def reduce_incidence(
         seed = None if seeds is None else seeds.get(rot)
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
         info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
+        info["n_samples"] = len(red.samples)
+        clocks = _clocks(meas), _clocks(std)
+        if clocks[0] is not None and clocks[1] is not None:  # the captures' time stamps
+            info["clock_s"], info["clock_s_standard"] = clocks
         out.append((red.samples, info))
     return out
+
+
+def _clocks(cap: Any) -> float | None:
+    """Mean time stamp (``clock_s``, s) of a capture's frames, or None without one."""
+    t = [m.get("clock_s") for m in cap.metas]
+    return None if any(x is None for x in t) else float(np.mean(t))
 
 
 def _certified_image(cert: Any, std: Any, wo_dome: np.ndarray, gvalid: np.ndarray) -> np.ndarray:
@@ -278,6 +288,7 @@ def campaign_budget(
         sigma = _blur_sigma(cal)
         terms += bt.blur_term(samples, model, sigma)
         terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))
+        terms += _lamp(samples, spec, infos)
         r = bt.spec_rms(spec.get("reillumination"))
         if r > 0:
             terms += bt.reillumination_term(samples, model, r, _rho_std(cal, samples),
@@ -306,6 +317,22 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
     series = 0.02 * bt.spec_rms(spec.get("fstop_series"))  # marked vs √2^k: up to 2 %
     u = math.sqrt(err**2 + series**2 + flicker**2)
     return bt.exposure_terms(samples, u, "exposure(uncorrected)") if u > 0 else []
+
+
+def _lamp(samples: Any, spec: Mapping[str, Any], infos: Sequence[Mapping[str, Any]]) -> list:
+    """The lamp's warm-up and drift between each sample capture and its standard's, from
+    the captures' time stamps (none without them)."""
+    from gonio.campaign import budget_terms as bt
+
+    if not infos or any("clock_s" not in i or "n_samples" not in i for i in infos):
+        return []
+    n = [int(i["n_samples"]) for i in infos]
+    if sum(n) != len(samples):
+        return []
+    t_m = np.repeat([float(i["clock_s"]) for i in infos], n)
+    t_s = np.repeat([float(i["clock_s_standard"]) for i in infos], n)
+    return bt.lamp_terms(samples, t_m, t_s, bt.spec_rms(spec.get("lamp_warmup")),
+                         bt.spec_rms(spec.get("lamp_drift")))  # fmt: skip
 
 
 def _table_u(fst: Any, infos: Sequence[Mapping[str, Any]]) -> float:

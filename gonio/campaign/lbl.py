@@ -371,9 +371,14 @@ class _SimulatedLBL:
             kw["binning"] = self.binning
         if self.inst._frame_fx:  # the lamp's warm-up and drift follow the real schedule
             kw["clock_s"] = self.clock_s(sample, theta_i, phi_i)
+            return [(img, {**meta, "clock_s": kw["clock_s"]})  # the capture's time stamp
+                    for img, meta in self._shoot(sample, theta_i, phi_i, kw)]  # fmt: skip
+        return self._shoot(sample, theta_i, phi_i, kw)
+
+    def _shoot(self, sample: Any, theta_i: float, phi_i: float, kw: dict[str, Any]) -> Frames:
         if self.plan.exposures_s:
             frames = []
-            rng = np.random.default_rng(seed)
+            rng = np.random.default_rng(kw["rng"])
             for e in self.plan.exposures_s:
                 sub = {**kw, "rng": int(rng.integers(2**62))}
                 frames.append(self.inst.capture(sample, theta_i, phi_i, exposure=e, **sub))
