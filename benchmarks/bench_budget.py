@@ -34,7 +34,7 @@ WARD_TABLE = (
 )  # fmt: skip
 
 
-def _run_one(material: str, seed: int, preset: str, corrections) -> dict | None:
+def _run_one(material: str, seed: int, preset: str, corrections, workers=None) -> dict | None:
     """One campaign in this process (the lens calibration is kept between campaigns, as a
     laboratory keeps it; each seed's instrument is calibrated anew)."""
     from gonio.campaign import Plan, run
@@ -42,7 +42,7 @@ def _run_one(material: str, seed: int, preset: str, corrections) -> dict | None:
     t = time.perf_counter()
     try:
         r = run(Plan(material=material, seed=seed, preset=preset, plots=False,
-                     corrections=corrections), quiet=True)  # fmt: skip
+                     corrections=corrections), quiet=True, workers=workers)  # fmt: skip
     except Exception as exc:  # report and go on: one failure must not stop the study
         print(f"  {material} seed {seed} failed: {type(exc).__name__}: {exc}", flush=True)
         return None
@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--corrections", default=None, help="comma list; default all")
     ap.add_argument("--out", default="budget_study.jsonl")
     ap.add_argument("--table-only", action="store_true", help="print the table of --out")
+    ap.add_argument("--workers", type=int, default=None, help="processes per campaign")
     a = ap.parse_args(argv)
     out = Path(a.out)
     rows = (
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
                 if (m, seed, a.preset, json.dumps(corr)) in done:
                     continue
                 t = time.perf_counter()
-                r = _run_one(m, seed, a.preset, corr)
+                r = _run_one(m, seed, a.preset, corr, a.workers)
                 if r is None:
                     continue
                 rows.append(r)

@@ -116,12 +116,14 @@ def dark_region(
         return None
     level = float(np.median(d[lit]))
     is_dark = lit & (d < fraction * level)
-    if margin > 0 and is_dark.any():
-        from scipy.ndimage import distance_transform_edt
+    if margin > 0 and is_dark.any():  # away from every lit pixel: a dilation by a disk
+        import cv2
 
         shape = np.asarray(in_field).shape
-        bright = (field & ~is_dark).reshape(shape)
-        is_dark &= distance_transform_edt(~bright).ravel() > margin
+        bright = (field & ~is_dark).reshape(shape).astype(np.uint8)
+        y, x = np.mgrid[-margin : margin + 1, -margin : margin + 1]
+        disk = (x * x + y * y <= margin * margin).astype(np.uint8)
+        is_dark &= cv2.dilate(bright, disk).ravel() == 0
     dark = np.flatnonzero(is_dark)
     return dark if dark.size >= MIN_DARK_PIXELS else None
 
@@ -166,6 +168,7 @@ def veil_shape(
     *,
     standard: Any = None,
     factor: NDArray[np.float64] | None = None,
+    stride: int = 2,
 ) -> NDArray[np.float64]:
     """The veil's relative distribution over the image (flat, mean 1 over the image circle).
 
@@ -182,11 +185,12 @@ def veil_shape(
 
     With ``standard`` (its capture of the same incidence) the response is read from the
     standard's light instead, ``standard − background`` divided by the standard's
-    ``factor`` (its certified reflectance factor at each pixel, flat; 1 if not given) over
-    the pixels it lights: a uniform radiance hundreds of times the background, without the
-    beam's glow (which the background holds, and which near normal incidence covers whole
-    central rings: there the background's shape was 5.7 times too high and the corrected
-    specular peak of rolled brass 5 % too high).
+    ``factor`` (its certified reflectance factor at each pixel, flat; 1 if not given; NaN
+    leaves a pixel out) over the pixels it lights: a uniform radiance hundreds of times the
+    background, without the beam's glow (which the background holds, and which near normal
+    incidence covers whole central rings: there the background's shape was 5.7 times too
+    high and the corrected specular peak of rolled brass 5 % too high). Every ``stride``-th usable pixel enters
+    the means (a sector of a ring needs tens of pixels, not thousands).
     """
     b, ok = _longest_signal(background)
     mask = np.asarray(in_field, dtype=bool)
@@ -197,7 +201,9 @@ def veil_shape(
         s_sig, ok_s = _longest_signal(standard)
         d = s_sig - b
         if factor is not None:
-            d = d / np.where(np.asarray(factor, dtype=np.float64).ravel() > 0, factor, 1.0)
+            fac = np.asarray(factor, dtype=np.float64).ravel()
+            use = use & np.isfinite(fac)
+            d = d / np.where(use & (fac > 0), fac, 1.0)
         use = use & ok_s
         if use.any():  # the lit pixels (not the occluded ones, which hold only the veil)
             use = use & (d > 0.25 * float(np.median(d[use])))
@@ -206,15 +212,16 @@ def veil_shape(
     if not use.any():
         return out
     edges = np.linspace(0.0, float(th[use].max()) + 1e-9, rings + 1)
-    ring = np.clip(np.searchsorted(edges, th, side="right") - 1, 0, rings - 1)
-    v, u = np.divmod(np.arange(b.size), mask.shape[1])
+    idx = np.flatnonzero(use)[::stride]
+    ring = np.clip(np.searchsorted(edges, th[idx], side="right") - 1, 0, rings - 1)
+    v, u = np.divmod(idx, mask.shape[1])
     fv, fu = np.divmod(np.flatnonzero(field), mask.shape[1])
     az = np.arctan2(v - fv.mean(), u - fu.mean())
     sector = np.minimum(((az + math.pi) / (2.0 * math.pi) * sectors).astype(np.int64), sectors - 1)
-    cell = (ring * sectors + sector)[use]
+    cell = ring * sectors + sector
     n_cells = rings * sectors
     cnt = np.bincount(cell, minlength=n_cells).reshape(rings, sectors)
-    tot = np.bincount(cell, weights=b[use], minlength=n_cells).reshape(rings, sectors)
+    tot = np.bincount(cell, weights=b[idx], minlength=n_cells).reshape(rings, sectors)
     means = np.where(cnt >= SHAPE_MIN_PIXELS, tot / np.maximum(cnt, 1), np.nan)
     have = np.isfinite(means).any(axis=1)
     n_ring = cnt.sum(axis=1)  # a ring too small for sectors: its plain mean

@@ -185,22 +185,48 @@ def glare_term(
 
 
 def lamp_terms(
-    samples: Any, t_measured: NDArray, t_standard: NDArray, u_warmup: float, u_drift: float
-) -> list[Perturbation]:
+    samples: Any, t_measured: NDArray, t_standard: NDArray, u_warmup: float, u_drift: float,
+    anchors: tuple[NDArray, NDArray] | None = None, u_flicker: float = 0.0,
+) -> list[Perturbation]:  # fmt: skip
     """The lamp's warm-up and drift between each sample capture (``t_measured``, s) and its
-    standard's (``t_standard``): ``δy`` per unit warm-up and per unit drift (1/h)."""
+    standard's (``t_standard``): ``δy`` per unit warm-up and per unit drift (1/h).
+
+    With ``anchors`` — the re-measured standards' times and their first captures' times
+    (:mod:`gonio.calibration.drift`) — the samples were divided by the ratios interpolated
+    between them: the terms are what the interpolation leaves of the lamp model, and each
+    anchor's ratio carries the lamp's flicker in its two frames (``√2 u_flicker``, the
+    interpolation weights of the anchor as ``δy``).
+    """
     from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
 
     y = samples.value
     tm, ts = np.asarray(t_measured, dtype=np.float64), np.asarray(t_standard, dtype=np.float64)
+    shapes = {
+        "lamp_warmup": (u_warmup, "1", lambda a, b: np.exp(-b / tau) - np.exp(-a / tau)),
+        "lamp_drift": (u_drift, "1/h", lambda a, b: (a - b) / 3600.0),
+    }
     out = []
-    if u_warmup > 0:
-        dy = y * (np.exp(-ts / tau) - np.exp(-tm / tau))
-        out.append(Perturbation("lamp_warmup", u_warmup, "1", dy, corrected=False,
-                                note="warm-up, specification"))  # fmt: skip
-    if u_drift > 0:
-        out.append(Perturbation("lamp_drift", u_drift, "1/h", y * (tm - ts) / 3600.0,
-                                corrected=False, note="lamp drift, specification"))  # fmt: skip
+    for name, (u, unit, f) in shapes.items():
+        if u <= 0:
+            continue
+        rel = f(tm, ts)
+        note = f"{name[5:]} between standard and sample, specification"
+        if anchors is not None:
+            ta, tsa = (np.asarray(x, dtype=np.float64) for x in anchors)
+            order = np.argsort(ta, kind="stable")
+            rel = rel - np.interp(tm, ta[order], f(ta, tsa)[order])
+            note = f"{name[5:]} left by the re-measured standard, specification"
+        out.append(Perturbation(name, u, unit, y * rel, corrected=anchors is not None,
+                                note=note))  # fmt: skip
+    if anchors is not None and u_flicker > 0:
+        ta = np.asarray(anchors[0], dtype=np.float64)
+        order = np.argsort(ta, kind="stable")
+        for k in range(ta.size):  # the interpolation weight of anchor k at each sample
+            unit_k = np.zeros(ta.size)
+            unit_k[k] = 1.0
+            w = np.interp(tm, ta[order], unit_k[order])
+            out.append(Perturbation(f"lamp_anchor[{k}]", math.sqrt(2.0) * u_flicker, "1", -y * w,
+                                    note="flicker of a re-measured standard's ratio"))  # fmt: skip
     return out
 
 

@@ -146,6 +146,10 @@ def _stages(
             ex.timings["calibration"] = setup.t_calibration
         # 2. capture and reduce
         per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
+        if plan.restandard_every:  # the lamp's drift from the re-measured standard
+            from gonio.campaign.knowledge import correct_drift
+
+            correct_drift(per_angle, plan.corrections)
         samples = _merge(plan, per_angle, ex, saved_raw=setup.raw is not None)
         ex.timings["capture_reduce_wall"] = time.perf_counter() - t_start
         _plots(ex, setup, samples, None)  # the hemisphere map needs no fit: drawn meanwhile
@@ -341,6 +345,22 @@ class _SimulatedLBL:
         rot = round(math.degrees(phi_i) % 360.0, 6) if kind == "measured" else None
         return self._clock.get((kind, round(math.degrees(theta_i), 6), rot), 0.0)
 
+    def shoot_restandard(self, theta_i: float, phi_i: float, seed: int) -> Frames:
+        """The standard captured again after the sample's capture at (θi, φi): the sample
+        swapped out and back by hand (:attr:`LBLTiming.swap_s` after the capture's end)."""
+        kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
+        if self.binning is not None:
+            kw["binning"] = self.binning
+        if not self.inst._frame_fx:
+            return self._shoot("standard", theta_i, 0.0, kw)
+        from gonio.simulator.lbl_timing import TIMINGS
+
+        timing = TIMINGS["ward1992" if self.plan.preset == "ward1992" else "modern"]
+        t = self.clock_s(object(), theta_i, phi_i) + 1.0  # the sample's capture (~1 s)
+        kw["clock_s"] = t + timing.swap_s
+        return [(img, {**meta, "clock_s": kw["clock_s"]})
+                for img, meta in self._shoot("standard", theta_i, 0.0, kw)]  # fmt: skip
+
     def prepare(self, sample: Any = "standard", lab: Any = None) -> None:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
         before forking workers, which then inherit them instead of each loading them.
@@ -430,6 +450,8 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
         else:
             pr = math.radians(rot)
             shots = {"measured": lambda pr=pr, s=seed: inst.shoot(truth_model, ti, pr, s)}
+            if _restandard(plan, th) and hasattr(inst, "shoot_restandard"):
+                shots["restandard"] = lambda pr=pr, s=seed: inst.shoot_restandard(ti, pr, s + 2)
         folder = raw / key if raw is not None else None
         made_by = results.group_record(plan, key, seed)
         frames, loaded, tc, tio = _take_group(folder, shots, resume, made_by)
@@ -440,7 +462,9 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
     t = time.perf_counter()
     ref = captured[group_key(th)]
     measured = {rot: captured[group_key(th, rot)]["measured"] for rot in plan.rotations_deg}
-    for table, info in _reduce(plan, th, ref["standard"], ref["background"], measured):
+    restd = {rot: captured[group_key(th, rot)]["restandard"] for rot in plan.rotations_deg
+             if "restandard" in captured[group_key(th, rot)]}  # fmt: skip
+    for table, info in _reduce(plan, th, ref["standard"], ref["background"], measured, restd):
         res["tables"].append(table)
         res.setdefault("infos", []).append(info)
         res["n_pixels"] += int(info["n_before"])
@@ -452,9 +476,16 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
     return res
 
 
+def _restandard(plan: Plan, th: float) -> bool:
+    """Whether the standard is re-measured after the sample's capture at ``th``."""
+    n = plan.restandard_every
+    return bool(n) and list(plan.theta_i_deg).index(th) % n == 0
+
+
 def _reduce(
-    plan: Plan, th: float, standard: Frames, background: Frames, measured: Mapping[float, Frames]
-) -> list[tuple[BRDFSamples, dict[str, Any]]]:
+    plan: Plan, th: float, standard: Frames, background: Frames,
+    measured: Mapping[float, Frames], restandard: Mapping[float, Frames] | None = None,
+) -> list[tuple[BRDFSamples, dict[str, Any]]]:  # fmt: skip
     """One incidence's captures reduced as the laboratory does it: side-cars cut to what a
     real instrument writes, its calibration and corrections
     (:func:`gonio.campaign.knowledge.reduce_incidence`); the averaging thinning with the
@@ -468,7 +499,8 @@ def _reduce(
     if plan.thinning_mode == "select":
         seeds = {rot: capture_seed(plan.seed, group_key(th, rot) + "/select") for rot in measured}
         return reduce_incidence(standard, background, measured, lab, corrections=plan.corrections,
-                                seeds=seeds, debias=debias, select=opts)  # fmt: skip
+                                seeds=seeds, debias=debias, select=opts,
+                                restandard=restandard)  # fmt: skip
     std, bg = Capture(laboratory_view(standard)), Capture(laboratory_view(background))
     geo = {} if lab is None else {k: v for k, v in lab.reduction_options().items()
                                   if k in ("lens", "mirror", "method")}  # fmt: skip

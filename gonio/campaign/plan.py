@@ -135,6 +135,14 @@ class Plan:
         A calibration folder (``calibration.json``, :mod:`gonio.calibration.laboratory`)
         to reduce with instead of calibrating the instrument (the default, once per
         physical instrument).
+    restandard_every : int
+        Re-measure the standard during the sample sweeps: after the sample's capture at
+        every ``restandard_every``-th incidence angle of each rotation (the first included)
+        the sample is swapped for the standard and the standard captured again at that
+        incidence; the ratio to its first capture follows the lamp, and the ``drift``
+        correction (:func:`gonio.campaign.knowledge.correct_drift`) divides each sample
+        capture by it, interpolated in time. 0 (default): no re-measurement. Each
+        re-measurement adds two manual swaps to the real instrument's run time.
     """
 
     material: str = "rolled_brass"
@@ -158,6 +166,7 @@ class Plan:
     binning: tuple[int, int] | None = None
     corrections: tuple[str, ...] | None = None
     calibration: str | None = None
+    restandard_every: int = 0
 
     def resolved(self, truth: Any = None) -> Plan:
         """The plan with defaults filled in and every field validated.
@@ -213,6 +222,13 @@ class Plan:
             d_over_r = float(d_over_r)
             if not (math.isfinite(d_over_r) and 0.0 < d_over_r < 0.5):
                 raise ValueError(f"d_over_r {self.d_over_r!r}: expected a ratio in (0, 0.5)")
+        n_re = self.restandard_every
+        if not (isinstance(n_re, int | np.integer) and not isinstance(n_re, bool)
+                and 0 <= n_re <= len(angles)):  # fmt: skip
+            raise ValueError(
+                f"restandard_every {n_re!r}: expected an integer in [0, {len(angles)}] "
+                "(0: no re-measured standard)"
+            )
         preset, instrument_seed, binning = self._resolved_instrument()
         return replace(
             self,
@@ -230,6 +246,7 @@ class Plan:
             d_over_r=d_over_r,
             debias=bool(self.debias),
             corrections=corrections,
+            restandard_every=int(n_re),
         )
 
     def _resolved_rotations(self, params: Mapping[str, Any], model: str) -> tuple[float, ...]:
