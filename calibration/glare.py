@@ -189,8 +189,9 @@ def veil_shape(
     leaves a pixel out) over the pixels it lights: a uniform radiance hundreds of times the
     background, without the beam's glow (which the background holds, and which near normal
     incidence covers whole central rings: there the background's shape was 5.7 times too
-    high and the corrected specular peak of rolled brass 5 % too high). Every ``stride``-th usable pixel enters
-    the means (a sector of a ring needs tens of pixels, not thousands).
+    high and the corrected specular peak of rolled brass 5 % too high). Every
+    ``stride``-th usable pixel enters the means (a sector of a ring needs tens of pixels,
+    not thousands).
     """
     b, ok = _longest_signal(background)
     mask = np.asarray(in_field, dtype=bool)
