@@ -55,7 +55,9 @@ def test_the_laboratory_saturation_replaces_the_side_cars_of_frames_read_out_ali
 
 
 def test_corrections_are_checked():
-    assert check_corrections(None) == ("geometry", "standard", "exposure", "glare", "saturation")
+    assert check_corrections(None) == (
+        "geometry", "standard", "exposure", "glare", "saturation", "drift",
+    )  # fmt: skip
     assert check_corrections(["glare"]) == ("glare",)
     with pytest.raises(ValueError, match="unknown"):
         check_corrections(["flatfield"])
