@@ -128,7 +128,8 @@ class Plan:
         ``(0, 0)`` full resolution.
     corrections : sequence of str, optional
         The laboratory's corrections (:data:`gonio.campaign.knowledge.CORRECTIONS`:
-        ``geometry``, ``standard``, ``exposure``, ``glare``); default all. A correction
+        ``geometry``, ``standard``, ``exposure``, ``glare``, ``saturation``, ``drift``);
+        default all. A correction
         left out is an ablation: its effect stays in the data and the budget carries it as
         an uncorrected term.
     calibration : str, optional
