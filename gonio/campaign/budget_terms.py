@@ -186,7 +186,7 @@ def glare_term(
 
 def lamp_terms(
     samples: Any, t_measured: NDArray, t_standard: NDArray, u_warmup: float, u_drift: float,
-    anchors: tuple[NDArray, NDArray] | None = None, u_flicker: float = 0.0,
+    anchors: tuple[NDArray, NDArray] | None = None, u_anchor: float = 0.0,
 ) -> list[Perturbation]:  # fmt: skip
     """The lamp's warm-up and drift between each sample capture (``t_measured``, s) and its
     standard's (``t_standard``): ``δy`` per unit warm-up and per unit drift (1/h).
@@ -194,7 +194,7 @@ def lamp_terms(
     With ``anchors`` — the re-measured standards' times and their first captures' times
     (:mod:`gonio.calibration.drift`) — the samples were divided by the ratios interpolated
     between them: the terms are what the interpolation leaves of the lamp model, and each
-    anchor's ratio carries the lamp's flicker in its two frames (``√2 u_flicker``, the
+    anchor's ratio carries the scatter ``u_anchor`` of its two captures' exposures (the
     interpolation weights of the anchor as ``δy``).
     """
     from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
@@ -218,15 +218,15 @@ def lamp_terms(
             note = f"{name[5:]} left by the re-measured standard, specification"
         out.append(Perturbation(name, u, unit, y * rel, corrected=anchors is not None,
                                 note=note))  # fmt: skip
-    if anchors is not None and u_flicker > 0:
+    if anchors is not None and u_anchor > 0:
         ta = np.asarray(anchors[0], dtype=np.float64)
         order = np.argsort(ta, kind="stable")
         for k in range(ta.size):  # the interpolation weight of anchor k at each sample
             unit_k = np.zeros(ta.size)
             unit_k[k] = 1.0
             w = np.interp(tm, ta[order], unit_k[order])
-            out.append(Perturbation(f"lamp_anchor[{k}]", math.sqrt(2.0) * u_flicker, "1", -y * w,
-                                    note="flicker of a re-measured standard's ratio"))  # fmt: skip
+            out.append(Perturbation(f"lamp_anchor[{k}]", u_anchor, "1", -y * w,
+                                    note="a re-measured standard's exposures"))  # fmt: skip
     return out
 
 

@@ -374,7 +374,7 @@ def campaign_budget(
         sigma = _blur_sigma(cal)
         terms += bt.blur_term(samples, model, sigma)
         terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))
-        terms += _lamp(samples, spec, infos)
+        terms += _lamp(samples, spec, infos, _capture_u(cal, spec, corr, infos))
         r = bt.spec_rms(spec.get("reillumination"))
         if r > 0:
             terms += bt.reillumination_term(samples, model, r, _rho_std(cal, samples),
@@ -387,11 +387,8 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
     from gonio.campaign import budget_terms as bt
 
     flicker = bt.spec_rms(spec.get("lamp_flicker"))
-    m = max((int(i.get("n_frames", 1)) for i in infos), default=1)
     if "exposure" in corr and cal.fstops is not None:
-        iris = cal.fstops.sigma_iris
-        u = math.hypot(iris / math.sqrt(m), flicker)
-        terms = bt.exposure_terms(samples, u)
+        terms = bt.exposure_terms(samples, _capture_u(cal, spec, corr, infos))
         u_tab = _table_u(cal.fstops, infos)
         if u_tab > 0:  # the ladder's own uncertainty: the standard's stops vs the sample's
             terms.append(bt.Perturbation("exposure_table", u_tab, "1", samples.value,
@@ -405,9 +402,12 @@ def _exposure(samples, cal, spec, corr, infos) -> list:
     return bt.exposure_terms(samples, u, "exposure(uncorrected)") if u > 0 else []
 
 
-def _lamp(samples: Any, spec: Mapping[str, Any], infos: Sequence[Mapping[str, Any]]) -> list:
+def _lamp(
+    samples: Any, spec: Mapping[str, Any], infos: Sequence[Mapping[str, Any]], u_anchor: float
+) -> list:
     """The lamp's warm-up and drift between each sample capture and its standard's, from
-    the captures' time stamps (none without them)."""
+    the captures' time stamps (none without them); ``u_anchor``: the exposure scatter of
+    one capture, of which a re-measured standard's ratio has two."""
     from gonio.campaign import budget_terms as bt
 
     if not infos or any("clock_s" not in i or "n_samples" not in i for i in infos):
@@ -424,7 +424,19 @@ def _lamp(samples: Any, spec: Mapping[str, Any], infos: Sequence[Mapping[str, An
                    np.array([a["clock_s_standard"] for a in re]))  # fmt: skip
     return bt.lamp_terms(samples, t_m, t_s, bt.spec_rms(spec.get("lamp_warmup")),
                          bt.spec_rms(spec.get("lamp_drift")), anchors,
-                         bt.spec_rms(spec.get("lamp_flicker")))  # fmt: skip
+                         math.sqrt(2.0) * u_anchor)  # fmt: skip
+
+
+def _capture_u(cal: Any, spec: Mapping[str, Any], corr: set, infos: Sequence[Mapping]) -> float:
+    """One capture's relative exposure scatter (iris over the bracket's frames, flicker):
+    the ``exposure`` terms' ``u``."""
+    from gonio.campaign import budget_terms as bt
+
+    flicker = bt.spec_rms(spec.get("lamp_flicker"))
+    if "exposure" in corr and cal.fstops is not None:
+        m = max((int(i.get("n_frames", 1)) for i in infos), default=1)
+        return math.hypot(cal.fstops.sigma_iris / math.sqrt(m), flicker)
+    return math.hypot(bt.spec_rms(spec.get("iris_repeatability")), flicker)
 
 
 def _table_u(fst: Any, infos: Sequence[Mapping[str, Any]]) -> float:

@@ -33,6 +33,8 @@ def test_the_standard_captured_again_follows_the_lamp():
     assert standard_ratio(again, first, back) == pytest.approx(1.004, abs=2e-4)
     with pytest.raises(ValueError, match="fraction"):
         standard_ratio(again, first, back, fraction=0.0)
+    with pytest.raises(ValueError, match="share no frame"):
+        standard_ratio(_cap(0.0 * std + 4100.0, rng), first, back)  # saturated
 
 
 def test_drift_gain_interpolates_in_time():
@@ -89,5 +91,5 @@ def test_the_budget_keeps_what_the_re_measured_standard_leaves():
     worst = np.max(np.abs(left["lamp_warmup"].dy))
     assert worst < 0.5 * sweep and worst < 0.15 * np.min(raw["lamp_warmup"].dy)
     flick = [p for k, p in left.items() if k.startswith("lamp_anchor")]
-    assert len(flick) == 4 and flick[0].u == pytest.approx(math.sqrt(2.0) * 5e-4)
+    assert len(flick) == 4 and flick[0].u == pytest.approx(5e-4)
     assert np.allclose(sum(-p.dy for p in flick), 1.0)  # interpolation weights sum to one
