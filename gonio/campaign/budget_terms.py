@@ -266,6 +266,9 @@ FIGURE_REALISATIONS = 4
 FIELD_STRIDE = 4
 #: of those, every how many a ray is traced through a random dome figure
 FIGURE_STRIDE = 2
+#: RMS rim slope (rad) of the random figures traced for the term (then per unit slope): small
+#: enough that the direction change is linear in it (1 rad turned rays by 2 rad)
+FIGURE_STEP_RAD = 1e-3
 
 
 def _cell(w: NDArray, grid: int = GRID) -> NDArray[np.int64]:
@@ -334,12 +337,18 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
         out.append(("lens_scale", u_f, "1", field(cam1, mc.geometry) / u_f, True))
     slope = spec_rms(cal.specification.get("dome_slope_error"))
     if slope > 0:
-        out += _figure_fields(mc, cam, wo0, ok0, slope)
+        out += _figure_fields(mc, cam, wo0, ok0, slope, lens)
     cal.__dict__["_direction_fields"] = out
     return out
 
 
-def _figure_fields(mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float) -> list:
+def _figure_fields(
+    mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float, lens: Any
+) -> list:
+    """The dome figure's direction errors *after* the mirror calibration: each random
+    figure also moves the calibration's spots, the refitted geometry absorbs part of the
+    figure and adds a smooth error of its own (a wrong D/R scales every angle), and the
+    reduction's error is the perturbed direction minus the refitted geometry's."""
     from gonio.simulator import lbl_effects as le
     from gonio.simulator.optics import Mirror
 
@@ -347,19 +356,84 @@ def _figure_fields(mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: flo
     mirror = Mirror(g.kind, g.radius, g.half_separation, 0.5, 0.45)
     keep = np.flatnonzero(ok0)[::FIGURE_STRIDE]  # a few rays per cell are enough
     r = max(mirror.semi_axes)
+    spots = _spot_pixels(mc, lens)
     out = []
     k_n = FIGURE_REALISATIONS
+    h = FIGURE_STEP_RAD  # a small figure, so that the direction change is linear in it
+    tr0 = le.trace_perturbed(mirror, cam[keep], None, 0.0)
     for k in range(k_n):
         seed = 2**40 + k  # a realisation of the dome-figure model, not this instrument's
 
         def sl(p, seed=seed):
-            return le.slope_field(p, 1.0, r, seed)
+            return le.slope_field(p, h, r, seed)
 
         tr = le.trace_perturbed(mirror, cam[keep], sl, 0.0)
-        ok = tr["valid"]
+        ok = tr["valid"] & tr0["valid"]
+        wo_red = wo0[keep]
+        if spots is not None:
+            g1 = _refit_geometry(mc, lens, spots, mirror, sl)
+            if g1 is not None:
+                from gonio.calibration.angles import reflection_directions
+
+                wo_red, ok1 = reflection_directions(cam[keep], g1, mc.method)
+                ok = ok & ok1
+        # per unit slope: the true direction's change minus the reduction's
+        err = ((tr["wo"] - tr0["wo"]) - (wo_red - wo0[keep])) / h
         out.append((f"dome_figure[{k}]", slope / math.sqrt(k_n), "rad",
-                    _cell_means(wo0[keep][ok], tr["wo"][ok]), False))  # fmt: skip
+                    _cell_means(wo0[keep][ok], wo0[keep][ok] + err[ok]), False))  # fmt: skip
     return out
+
+
+def _spot_pixels(mc: Any, lens: Any) -> tuple[NDArray, NDArray, NDArray] | None:
+    """The mirror calibration's spots (the directions of
+    :data:`gonio.campaign.calibrate.MIRROR_ANGLES_DEG` at the arm's opposite azimuth) as
+    the calibrated geometry images them: pixels, directions and ``∂wo/∂uv`` (n, 3, 2)."""
+    from gonio.calibration.angles import reflection_directions
+    from gonio.campaign.calibrate import MIRROR_ANGLES_DEG
+    from gonio.geometry import to_vector
+
+    dirs = to_vector(np.radians(MIRROR_ANGLES_DEG), math.pi)
+    uv = lens.pixel_grid().reshape(-1, 2)
+    sel = np.flatnonzero(lens.in_field(uv))[::FIELD_STRIDE]
+    wo, ok = reflection_directions(lens.unproject(uv[sel]), mc.geometry, mc.method)
+    if not ok.any():
+        return None
+    uv_s, wo_s = uv[sel][ok], wo[ok]
+    out_uv, out_j = [], []
+    for d in dirs:
+        u = uv_s[int(np.argmax(wo_s @ d))].astype(np.float64)
+        for _ in range(3):  # Newton steps on the pixel: wo(u) = d
+            w, jac = _direction_jacobian(lens, mc, u)
+            u = u + np.linalg.lstsq(jac, d - w, rcond=None)[0]
+        out_uv.append(u)
+        out_j.append(_direction_jacobian(lens, mc, u)[1])
+    return np.array(out_uv), dirs, np.array(out_j)
+
+
+def _direction_jacobian(lens: Any, mc: Any, u: NDArray) -> tuple[NDArray, NDArray]:
+    from gonio.calibration.angles import reflection_directions
+
+    pts = np.array([u, u + [0.5, 0.0], u - [0.5, 0.0], u + [0.0, 0.5], u - [0.0, 0.5]])
+    w, _ = reflection_directions(lens.unproject(pts), mc.geometry, mc.method)
+    return w[0], np.stack([w[1] - w[2], w[3] - w[4]], axis=1)
+
+
+def _refit_geometry(mc: Any, lens: Any, spots: tuple, mirror: Any, slope: Any) -> Any:
+    """The mirror fit to the spots as a dome of figure ``slope`` moves them (first order:
+    each spot's pixel shifted by ``−J⁺ δwo``), or None if the fit fails."""
+    from gonio.calibration.mirror import fit_mirror
+    from gonio.simulator import lbl_effects as le
+
+    uv, dirs, jac = spots
+    cam = lens.unproject(uv)
+    w0 = le.trace_perturbed(mirror, cam, None, 0.0)["wo"]
+    w1 = le.trace_perturbed(mirror, cam, slope, 0.0)["wo"]
+    moved = np.array([u - np.linalg.lstsq(j, dw, rcond=None)[0]
+                      for u, j, dw in zip(uv, jac, w1 - w0)])  # fmt: skip
+    try:
+        return fit_mirror(moved, dirs, lens, mc.geometry, method=mc.method).geometry
+    except (ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
