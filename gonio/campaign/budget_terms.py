@@ -438,7 +438,13 @@ def _refit_geometry(mc: Any, lens: Any, spots: tuple, mirror: Any, slope: Any) -
 
 def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
     """Each direction field of :func:`direction_fields` as the samples' ``δy`` (per unit):
-    ``f(wo + δwo) − f(wo)`` at each sample's dome direction (an arm at azimuth 0)."""
+    ``(f(wo + ε δwo) − f(wo)) / ε`` at each sample's dome direction (an arm at azimuth 0),
+    the field interpolated bilinearly between the cells' means (a lookup of the cell's own
+    mean is a piecewise-constant shift: a lobe inside one or two cells was moved, not
+    stretched, and alpha's sensitivity to a direction *scale* came out 40-150 times too
+    small), and ``ε`` such that the step is :data:`DIRECTION_STEP_RAD` (a unit of a field
+    per unit slope or focal scale moves directions by radians, far outside the linear
+    range)."""
     fields = direction_fields(cal)
     if not fields:
         return []
@@ -446,16 +452,37 @@ def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
     w_s = samples.wo
     c, s = np.cos(rot), np.sin(rot)
     w_dome = np.stack([c * w_s[:, 0] - s * w_s[:, 1], s * w_s[:, 0] + c * w_s[:, 1], w_s[:, 2]], 1)
-    cells = _cell(w_dome)
+    corners, weights = _bilinear(w_dome)
     f0 = model(samples.wi, w_s)
     out = []
     for name, u, unit, means, corrected in fields:
-        w1 = _unit(w_dome + means[cells])
+        d = np.einsum("nk,nkc->nc", weights, means[corners])
+        size = float(np.sqrt(np.mean(np.sum(d * d, axis=1)))) if d.size else 0.0
+        eps = DIRECTION_STEP_RAD / size if size > 0 else 1.0
+        w1 = _unit(w_dome + eps * d)
         back = np.stack([c * w1[:, 0] + s * w1[:, 1], -s * w1[:, 0] + c * w1[:, 1], w1[:, 2]], 1)
         note = "direction change of the calibrated geometry" if corrected else "dome figure"
-        out.append(Perturbation(name, u, unit, model(samples.wi, back) - f0,
+        out.append(Perturbation(name, u, unit, (model(samples.wi, back) - f0) / eps,
                                 corrected=corrected, note=note))  # fmt: skip
     return out
+
+
+#: the direction step (rad, RMS over the samples) at which a field's δy is differenced
+DIRECTION_STEP_RAD = 1e-4
+
+
+def _bilinear(w: NDArray, grid: int = GRID) -> tuple[NDArray[np.int64], NDArray]:
+    """The four cells around each direction's point of the equal-area square and their
+    bilinear weights (an empty cell at the rim counts as no change)."""
+    from gonio.calibration.thinning import hemisphere_to_square
+
+    q = np.clip((hemisphere_to_square(w) + 1.0) / 2.0, 0.0, 1.0 - 1e-12) * grid - 0.5
+    i0 = np.clip(np.floor(q).astype(np.int64), 0, grid - 2)
+    t = np.clip(q - i0, 0.0, 1.0)
+    corners = np.stack([(i0[:, 0] + a) * grid + (i0[:, 1] + b) for a in (0, 1) for b in (0, 1)], 1)
+    weights = np.stack([(1 - t[:, 0] if a == 0 else t[:, 0]) * (1 - t[:, 1] if b == 0 else t[:, 1])
+                        for a in (0, 1) for b in (0, 1)], 1)  # fmt: skip
+    return corners, weights
 
 
 def tilt_terms(samples: Any, model: Any, tilt_rms: float) -> list[Perturbation]:
