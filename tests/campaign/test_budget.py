@@ -82,3 +82,36 @@ def test_bad_perturbations(brass):
         build_budget(brass.fit, s, [Perturbation("x", 0.1, "1", s.value[:5])])
     with pytest.raises(ValueError, match="coverage"):
         build_budget(brass.fit, s, [], k=0.0)
+
+
+def test_a_direction_field_moves_alpha_as_a_refit(brass):
+    """A field that scales every dome direction's polar angle by 1 + ε: the direction
+    term (cell means interpolated, differenced at a small step) gives alpha's shift as a
+    re-fit of the samples seen through the scaled directions does."""
+    from types import SimpleNamespace
+
+    from gonio.campaign.budget_terms import _cell_means, direction_terms
+    from gonio.geometry import to_spherical, to_vector
+
+    rng = np.random.default_rng(0)
+    w0 = to_vector(np.arccos(rng.uniform(0.05, 1.0, 400_000)), rng.uniform(0, 2 * np.pi, 400_000))
+
+    def scaled(w, eps):  # polar angle times 1 + eps, per unit: theta along e_theta
+        t, p = to_spherical(w)
+        return to_vector(t * (1.0 + eps), p)
+
+    field = ("polar_scale", 1e-3, "1", _cell_means(w0, w0 + (scaled(w0, 1e-4) - w0) / 1e-4), True)
+    cal = SimpleNamespace(_direction_fields=[field])
+    s, res = brass.samples, brass.fit
+    (term,) = direction_terms(s, res.model, cal)
+    lin = 1e-3 * Sensitivity(res, s).shift(term.dy)
+    c, si = np.cos(-s.phi_i), np.sin(-s.phi_i)
+    w = s.wo
+    wd = np.stack([c * w[:, 0] - si * w[:, 1], si * w[:, 0] + c * w[:, 1], w[:, 2]], 1)
+    w1 = scaled(wd, 1e-3)
+    back = np.stack([c * w1[:, 0] + si * w1[:, 1], -si * w1[:, 0] + c * w1[:, 1], w1[:, 2]], 1)
+    brute = _refit(res, s, res.model(s.wi, back) - res.model(s.wi, s.wo))
+    for k in ("alpha_x", "alpha_y"):
+        j = res.free.index(k)
+        assert abs(brute[j]) > 1e-4 * res.params[k]  # a 0.1 % angle scale moves alpha
+        assert lin[j] == pytest.approx(brute[j], rel=0.15), (k, lin[j], brute[j])
