@@ -12,6 +12,13 @@ Each campaign runs in memory (``gonio.campaign.run``, no results folder); a fail
 reported and the study goes on; results are appended to a JSON-lines file as they come, and
 a rerun skips the (material, seed) pairs already there.
 
+Measured (preset modern, seeds 0-19, the ten materials, default plan with rotations 0, 45,
+90 for the anisotropic ones; two processes of ``--seeds 10 --workers 1``): the truth within U
+for 780 of 800 fitted parameters (97.5 %), U/rms median 2.04, max 2.95 (every row <= 3);
+rows below 95 %: enamel_finished_metal and painted_cardboard_box alpha_x 0.85,
+ivory_computer_plastic rho_s 0.90. Before this session's budget fixes: 77.0 % over 126
+campaigns (13 seeds), alpha_y 67/126.
+
 Usage::
 
     python benchmarks/bench_budget.py --preset modern --seeds 20 [--materials a,b] \\
