@@ -53,6 +53,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 from gonio.simulator.lenses import LENS_MODELS, FisheyeLens, make_lens
+from gonio.simulator.lenses import _pos_finite as _check_positive
 from gonio.simulator.optics import MIRRORS, Mirror
 from gonio.simulator.sensor import Sensor
 from gonio.simulator.source import Background, Source, cone_directions
@@ -303,16 +304,6 @@ def _check_angle(value: Any, name: str, lo: float, hi: float, hi_open: bool) -> 
     if not math.isfinite(v) or v < lo or (v >= hi if hi_open else v > hi):
         br = ")" if hi_open else "]"
         raise ValueError(f"{name} must be in [{lo:.6g}, {hi:.6g}{br} radians, got {value!r}")
-    return v
-
-
-def _check_positive(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
     return v
 
 

@@ -11,75 +11,82 @@ HELP = "capture, reduce, fit and report a material on a simulated instrument (LB
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument(
+    """The campaign's options, in four groups: what is measured, the plan, the instrument
+    and its laboratory, the output."""
+    _measurement_options(parser.add_argument_group("what is measured"))
+    _plan_options(parser.add_argument_group("the plan"))
+    _instrument_options(parser.add_argument_group("the instrument and its laboratory"))
+    _output_options(parser.add_argument_group("output and execution"))
+    add_json_option(parser)
+
+
+def _measurement_options(group) -> None:
+    group.add_argument(
         "--instrument",
         choices=("lbl", "cornell"),
         default="lbl",
         help="LBL imaging (default) or Cornell three-axis gonioreflectometer",
     )
-    parser.add_argument(
+    group.add_argument(
         "--material",
         default=None,
         help="material preset (default rolled_brass on lbl, garnet_red_paint on cornell)",
     )
-    parser.add_argument(
-        "--through-drivers",
-        action="store_true",
-        help="cornell: drive fake ESP300 and USB2000+ devices through the drivers",
-    )
-    parser.add_argument(
-        "--plan",
-        default=None,
-        help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
-        "(deg)",
-    )
-    parser.add_argument("--model", default=None, help="model to fit (default: the preset's)")
-    parser.add_argument(
-        "--mirror",
-        default=None,
-        choices=["ellipsoid", "hemisphere"],
-        help="LBL dome (default ellipsoid)",
-    )
-    parser.add_argument(
-        "--angles",
-        default=None,
-        metavar="DEG",
-        help="incidence angles: 'START:STOP:N' (inclusive) or 'a,b,c' (default 0:80:21)",
-    )
-    parser.add_argument(
-        "--rotations",
-        default=None,
-        metavar="DEG",
-        help="sample rotations 'a,b,...' (default 0,45,90 for anisotropic materials, else 0)",
-    )
-    parser.add_argument(
+    group.add_argument("--model", default=None, help="model to fit (default: the preset's)")
+    group.add_argument(
         "--compare",
         default=None,
         metavar="M1,M2",
         help="other models fitted to the same samples ('' for none)",
     )
-    parser.add_argument("--noise", default="on", help="off, on, or a factor (default on)")
-    parser.add_argument(
-        "--seed", type=int_in(0, 2**63 - 1), default=0, help="campaign seed (default 0)"
-    )
-    parser.add_argument(
+    group.add_argument(
         "--residual",
         default=None,
         choices=["absolute", "relative", "log", "li_torrance"],
         help="fit residual (LBL; default absolute)",
     )
-    parser.add_argument(
-        "--out",
+
+
+def _plan_options(group) -> None:
+    group.add_argument(
+        "--plan",
         default=None,
-        metavar="DIR",
-        type=output_dir,
-        help="results directory (default ./campaign_MATERIAL_seedN)",
+        help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
+        "(deg)",
     )
-    parser.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
-    parser.add_argument(
-        "--d-over-r", type=float, default=None, help="LBL dome D/R (default the instrument's)"
+    group.add_argument(
+        "--through-drivers",
+        action="store_true",
+        help="cornell: drive fake ESP300 and USB2000+ devices through the drivers",
     )
-    parser.add_argument(
+    group.add_argument(
+        "--angles",
+        default=None,
+        metavar="DEG",
+        help="incidence angles: 'START:STOP:N' (inclusive) or 'a,b,c' (default 0:80:21)",
+    )
+    group.add_argument(
+        "--rotations",
+        default=None,
+        metavar="DEG",
+        help="sample rotations 'a,b,...' (default 0,45,90 for anisotropic materials, else 0)",
+    )
+    group.add_argument(
+        "--restandard-every",
+        type=int_in(0, 10**6),
+        default=0,
+        metavar="N",
+        help="LBL: re-measure the standard after every N-th incidence angle of each rotation, "
+        "for the drift correction (default 0: never)",
+    )
+    group.add_argument("--noise", default="on", help="off, on, or a factor (default on)")
+    group.add_argument(
+        "--seed", type=int_in(0, 2**63 - 1), default=0, help="campaign seed (default 0)"
+    )
+
+
+def _instrument_options(group) -> None:
+    group.add_argument(
         "--instrument-preset",
         "--preset",
         dest="preset",
@@ -88,46 +95,65 @@ def add_arguments(parser) -> None:
         help="the instrument's build and its imperfections (default modern on lbl, "
         "cornell2005 on cornell; ideal = none)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--instrument-seed",
         type=int,
         default=None,
         help="which instrument of the preset (default the campaign seed)",
     )
-    parser.add_argument(
+    group.add_argument(
+        "--mirror",
+        default=None,
+        choices=["ellipsoid", "hemisphere"],
+        help="LBL dome (default ellipsoid)",
+    )
+    group.add_argument(
+        "--d-over-r", type=float, default=None, help="LBL dome D/R (default the instrument's)"
+    )
+    group.add_argument(
         "--binning",
         default=None,
         metavar="WxH",
         help="digitise the LBL images to WxH (default the preset's: 108x80 for ward1992; "
         "0x0 full resolution)",
     )
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    parser.add_argument(
-        "--no-debias",
-        action="store_true",
-        help="keep eq. 2's second-order ratio bias (LBL; see Plan.debias)",
-    )
-    parser.add_argument(
+    group.add_argument(
         "--corrections",
         default=None,
         metavar="LIST",
         help="the laboratory's corrections (LBL), comma list of geometry, standard, exposure, "
-        "glare; 'none' for none (default all)",
+        "glare, saturation, drift; 'none' for none (default all)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--calibration",
         default=None,
         metavar="DIR",
         help="a calibration folder (calibration.json) to reduce with (LBL)",
     )
-    parser.add_argument(
+    group.add_argument(
+        "--no-debias",
+        action="store_true",
+        help="keep eq. 2's second-order ratio bias (LBL; see Plan.debias)",
+    )
+
+
+def _output_options(group) -> None:
+    group.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        type=output_dir,
+        help="results directory (default ./campaign_MATERIAL_seedN)",
+    )
+    group.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    group.add_argument(
         "--workers",
         type=int,
         default=None,
         help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress bars, no table")
-    add_json_option(parser)
+    group.add_argument("--quiet", action="store_true", help="no progress bars, no table")
 
 
 def parse_angles(text: str, option: str = "--angles") -> tuple[float, ...]:
@@ -192,6 +218,7 @@ _LBL_ONLY = {
     "--no-debias": ("no_debias", False),
     "--workers": ("workers", None),
     "--binning": ("binning", None),
+    "--restandard-every": ("restandard_every", 0),
 }
 _CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
 
@@ -266,6 +293,7 @@ def run(args) -> int:
         instrument_seed=args.instrument_seed,
         binning=parse_binning(args.binning),
         calibration=args.calibration,
+        restandard_every=args.restandard_every,
     )
     if args.corrections is not None:
         text = args.corrections.strip()

@@ -67,14 +67,21 @@ def plot_budget(budget: Mapping[str, Any], path: str | os.PathLike, *, title: st
             if not r[2]:
                 bar.set_hatch("//")
         pv = abs(budget["params"][p])
+        lines = []
         for key, style in (("combined", "-"), ("expanded", "--")):
             v = budget[key][p]
             if v is not None and math.isfinite(v) and pv:
-                ax.axvline(100 * v / pv, color="k", ls=style, lw=1,
-                           label=f"{key} {100 * v / pv:.3g}%")  # fmt: skip
+                lines.append(100 * v / pv)
+                ax.axvline(lines[-1], color="k", ls=style, lw=1,
+                           label=f"{key} {lines[-1]:.3g}%")  # fmt: skip
         ax.set_xscale("log")
-        top = max(100 * max(vals), 1e-6)
-        ax.set_xlim(max(top * 1e-4, 1e-6), top * 3)
+        # the axis holds the largest bar and the expanded line (U can exceed 3x every bar)
+        top = max(100 * max(vals), *lines, 1e-6)
+        left = max(top * 1e-4, 1e-6)
+        ax.set_xlim(left, top * 3)
+        for y, v in zip(ys, vals):
+            if 100 * v < left:  # a term too small to draw is named as such, not left blank
+                ax.text(left * 1.1, y, f"< {left:.1g}%", va="center", fontsize=6, color="0.3")
         ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=9)
         ax.set_xlabel("relative standard uncertainty (%)", fontsize=8)
         ax.tick_params(labelsize=7)
