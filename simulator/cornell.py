@@ -977,6 +977,33 @@ def simulate_campaign(
         n_sat += int(sat)
     if not noise:
         sigs[:] = np.nan  # no noise: standard errors unknown (not zero), as gonio.fit expects
+    meta = _campaign_metadata(inst, p, sample, reference, noise, timing, t_int, n_sat, refs,
+                              reference_every)  # fmt: skip
+    rep = np.repeat
+    return BRDFSamples.from_directions(
+        rep(wi, nb, axis=0),
+        rep(wo, nb, axis=0),
+        vals.ravel(),
+        sigs.ravel(),
+        wavelength_nm=np.tile(wl_bands, len(p)),
+        metadata=meta,
+    )
+
+
+def _campaign_metadata(
+    inst: Any,
+    p: Plan,
+    sample: Any,
+    reference: str,
+    noise: bool,
+    timing: Timing | None,
+    t_int: NDArray,
+    n_sat: int,
+    refs: list,
+    reference_every: int,
+) -> dict[str, Any]:
+    """The metadata :func:`simulate_campaign` records: the instrument, the reference, the
+    cone integrations skipped, the integration times and the estimated run time."""
     est = estimate_run_time(p, timing, t_int)
     meta = {
         "instrument": "cornell",
@@ -998,15 +1025,7 @@ def simulate_campaign(
         meta["reference_drift"] = _reference_drift(refs)
     if inst.fx is not None or reference_every:
         meta["campaign_clock_h"] = inst.clock_s / 3600.0
-    rep = np.repeat
-    return BRDFSamples.from_directions(
-        rep(wi, nb, axis=0),
-        rep(wo, nb, axis=0),
-        vals.ravel(),
-        sigs.ravel(),
-        wavelength_nm=np.tile(wl_bands, len(p)),
-        metadata=meta,
-    )
+    return meta
 
 
 def _geometry_seconds(tm: Timing, delta: NDArray, t: float) -> float:

@@ -417,6 +417,21 @@ def cornell_budget(
                 acc[i][name] = acc[i].get(name, 0.0) + float(var[i])
         for i, p in enumerate(free):
             contrib[p] = {n: math.sqrt(v) for n, v in acc[i].items()}
+    params = _combined_parameters(res, free, contrib, summary, nb, k)
+    return _with_truth(params, summary, list(dict.fromkeys(names)))
+
+
+def _combined_parameters(
+    res: Any,
+    free: list[str],
+    contrib: dict[str, dict[str, float]],
+    summary: dict,
+    nb: int,
+    k: float,
+) -> dict[str, Any]:
+    """Each fitted parameter's budget (:func:`combine`): the detector noise as its
+    statistical term, the effects' contributions, and per band the reference's noise and
+    the stray-light trap's offset; σ/τ from τ's budget when the fit reports the ratio."""
     ref_rel = summary.get("reference_band_rel_error") or [0.0] * nb
     tot = summary.get("stderr_with_reference", {})
     params: dict[str, Any] = {}
@@ -440,7 +455,7 @@ def cornell_budget(
         params["sigma/tau"] = combine(
             pt["stat"] * r / t, {n: v * r / t for n, v in pt["contributions"].items()}, k
         )
-    return _with_truth(params, summary, list(dict.fromkeys(names)))
+    return params
 
 
 def _with_truth(params: dict, summary: dict, effects: list[str]) -> dict[str, Any]:
