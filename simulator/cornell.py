@@ -56,6 +56,8 @@ References
 ----------
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Here: the instrument of §5.1 (source arm, two-axis stage, 31-band spectroradiometer) and
+   the source solid angle of eq. 16.
 """
 
 from __future__ import annotations

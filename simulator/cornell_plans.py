@@ -19,6 +19,8 @@ References
 ----------
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Here: §5.1, the 441-position hemispherical plan, the 85° range and the 7° cone about
+   retro-reflection that the plans leave out.
 """
 
 from __future__ import annotations

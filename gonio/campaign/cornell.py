@@ -47,6 +47,8 @@ References
 ----------
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Here: the model fitted (eq. 3-14, the identifiability of σ and τ through eq. 6-9), the
+   source solid angle of eq. 16, and the instrument of §5.1 the campaign runs.
 """
 
 from __future__ import annotations

@@ -37,8 +37,11 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Here: the LBL device of §3 as the driver campaign's ESP300-turned sample and camera.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Here: the three-axis gonioreflectometer of §5.1 driven through its motor and
+   spectrometer drivers.
 """
 
 from __future__ import annotations

@@ -26,8 +26,11 @@ References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
    (Proc. SIGGRAPH '92) 26(2), 265-272, 1992. https://doi.org/10.1145/142920.134078
+   Here: the campaign of §3 (eq. 2 calibration, eq. 3 angles, thinning) and the models of
+   eq. 4-5b fitted to it.
 .. [LiTorrance2005] H. Li and K. E. Torrance, "A practical, comprehensive light reflection model",
    Technical report, Program of Computer Graphics, Cornell University, 2005.
+   Here: §5, the components chosen per material when the Li-Torrance model is fitted.
 """
 
 from __future__ import annotations
