@@ -1467,7 +1467,9 @@ register_knob(
         "brass, 7 θi): all, each one left out (its effect stays in the data and the budget "
         "carries it uncorrected), none",
         settings=CORRECTION_SETTINGS,
-        quick_settings=("all", "none"),
+        # quick: the campaign without corrections only; the quick bench's campaign with all
+        # of them is lbl_instrument's "modern" row (the same plan, seed and instrument)
+        quick_settings=("none",),
         run=_knob_corrections,
         primary="max_rel_err",
         unit="corrections",
