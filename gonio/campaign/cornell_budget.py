@@ -518,7 +518,7 @@ _CORRECTED = {"stray_light_fraction": "stray", "slit_fwhm_nm": "slit", "lamp_dri
 def figure_view(budget: dict[str, Any], fit: dict[str, float], corrections: dict) -> dict:
     """The budget in the shape :func:`gonio.plots.budget.plot_budget` draws: σ/τ, τ and σ
     (where fitted) as they are, and each k component as the median over its bands of every
-    term's relative contribution (times the median |k|, so the panel reads in relative
+    term's relative contribution (times the median ``|k|``, so the panel reads in relative
     terms)."""
     params = budget["parameters"]
     view: dict[str, Any] = {"params": {}, "statistical": {}, "terms": {}, "combined": {},
