@@ -15,8 +15,10 @@ dark frames. :func:`reduce_capture` runs Ward's §3.2 chain on them:
 
 Only what a real instrument's files hold is used: the images and their side-cars (exposure,
 sensor gain/read noise/black level, lens, mirror, θi, φi, sample rotation, ρ_standard), a lens
-calibration file and a mirror calibration if the lab made them. See ``/work/notes``'s
-``calibration.md`` for the keys.
+calibration file and a mirror calibration if the lab made them. The side-car keys a real
+instrument writes are :data:`gonio.campaign.knowledge.SIDECAR_FIELDS` and
+:data:`gonio.campaign.knowledge.SENSOR_FIELDS`; the formats are in ``docs/architecture.md``
+("File formats").
 
 References
 ----------
