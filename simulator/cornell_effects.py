@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from gonio.simulator.effects import Distribution, EffectSpec, is_ideal, preset_of
+from gonio.simulator.effects import Distribution, EffectSpec, _spec, is_ideal, preset_of
 from gonio.simulator.effects import check_magnitudes as _check_table
 from gonio.simulator.effects import realise as _realise
 
@@ -49,10 +49,6 @@ __all__ = [
 
 _LT = "Li, H., Torrance, K. E. (2005). A practical, comprehensive light reflection model"
 _EST = "engineering estimate (the paper states no value)"
-
-
-def _spec(name, unit, valid, doc, reference, hi_open=False) -> EffectSpec:
-    return EffectSpec(name, unit, (float(valid[0]), float(valid[1])), doc, reference, hi_open)
 
 
 #: every Cornell effect, by name
