@@ -36,6 +36,8 @@ import numpy as np
 from gonio.calibration.radiometry import SensorModel, exposure_scale
 from numpy.typing import NDArray
 
+from gonio.numeric import trim_mean
+
 __all__ = ["GlareOffset", "dark_region", "glare_offset", "veil", "veil_shape"]
 
 #: fewest dark pixels a glare estimate uses
@@ -154,9 +156,7 @@ def glare_offset(capture: Any, background: Any, dark: NDArray[np.int64]) -> Glar
     # a mean trimmed by 5 % at each end: a dark pixel that the sample does light (a footprint
     # moved by the sample's height) is an outlier, not part of the veil; a median would be
     # biased by the readings' quantisation (the veil is about 1 DN in a frame)
-    from scipy.stats import trim_mean
-
-    return GlareOffset(float(trim_mean(d, 0.05)), float(d.std() / math.sqrt(d.size)), int(d.size))
+    return GlareOffset(trim_mean(d, 0.05), float(d.std() / math.sqrt(d.size)), int(d.size))
 
 
 def veil_shape(

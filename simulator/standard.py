@@ -92,7 +92,7 @@ def _lobe_norm(theta_i: float, n: int = 256) -> float:
 @functools.cache
 def _tables() -> tuple[Any, NDArray, NDArray]:
     """(a(θi) interpolant, θi grid, N(θi) on it), computed once."""
-    from scipy.interpolate import PchipInterpolator
+    from gonio.numeric import Pchip
 
     th = np.radians([t for t, _ in PTFE_TARGETS])
     a = []
@@ -102,7 +102,7 @@ def _tables() -> tuple[Any, NDArray, NDArray]:
         a.append((target - b) / (peak - b))
     grid = np.radians(np.linspace(0.0, 90.0, 91))
     norm = np.array([_lobe_norm(float(t), 128) for t in grid])
-    return PchipInterpolator(th, np.array(a), extrapolate=True), grid, norm
+    return Pchip(th, np.array(a)), grid, norm
 
 
 def ptfe_factor(wi: ArrayLike, wo: ArrayLike, scale: float = 1.0) -> NDArray[np.float64]:

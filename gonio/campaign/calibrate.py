@@ -17,7 +17,7 @@ Two sides, kept apart as in a laboratory:
 (in memory, and as ``calibration.json`` in a folder when one is given): a laboratory
 calibrates its instrument once, not for every campaign (in one process; a new campaign
 process calibrates anew unless the plan names a calibration folder). Its independent jobs
-(board views, mirror spots, f-stop ladder; the lens calibrations, the f-stop fit) can run in
+(board views, mirror spots, f-stop ladder; the board views' detection, the f-stop fit) can run in
 parallel (``parallel``).
 
 References
@@ -92,10 +92,9 @@ def _serial(jobs: Sequence[Callable[[], Any]]) -> list[Any]:
 
 
 def _render_views(inst: Any, board: Any, poses: Sequence[tuple]) -> list[np.ndarray]:
-    from gonio.calibration.lens import render_board_view
+    from gonio.calibration.lens import render_board_views
 
-    return [render_board_view(inst.lens, board, r, t, supersample=1, px_per_square=60)
-            for r, t in poses]  # fmt: skip
+    return render_board_views(inst.lens, board, poses, supersample=1, px_per_square=60)
 
 
 def _spots(inst: Any, seeds: Sequence[int]) -> list[tuple[float, np.ndarray, dict]]:
@@ -201,8 +200,9 @@ def calibrate(
         Other design values the budget uses (``sample_radius``, ``spot_radius``, metres).
     parallel : callable, optional
         Runs a list of independent jobs, results in order (see :func:`take_captures`): the
-        lens calibration from all views, those from the even and the odd views (the focal
-        length's uncertainty) and the f-stop calibration.
+        ChArUco detection of the board views (in two halves) and the f-stop calibration;
+        the lens calibrations from all views and from the even and the odd views (the focal
+        length's uncertainty) follow here, from the same detections.
 
     Returns
     -------
@@ -217,18 +217,21 @@ def calibrate(
     views = captures["board"]
     keys = {"full": _views_key(views, b""), "split": _views_key(views, b"split")}
     jobs: dict[str, Callable[[], Any]] = {}
-    if keys["full"] not in _CACHE:  # the same views give the same calibration
-        jobs["full"] = partial(_lens_calibration, views)
-    if keys["split"] not in _CACHE:
-        jobs["even"], jobs["odd"] = partial(_half_fx, views[0::2]), partial(_half_fx, views[1::2])
+    new_lens = any(k not in _CACHE for k in keys.values())  # the same views: the same lens
+    if new_lens:  # each view detected once (in two halves), for all three calibrations
+        half = (len(views) + 1) // 2
+        jobs["first"] = partial(_detect, views[:half])
+        jobs["second"] = partial(_detect, views[half:])
     if captures.get("ladder"):
         jobs["fstops"] = partial(_fstops, captures["ladder"])
     got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
-    if "full" in got:
-        _CACHE[keys["full"]] = got["full"]
+    if new_lens:
+        dets = got["first"] + got["second"]
+        _CACHE[keys["full"]] = _lens_calibration(views, dets)
+        fx = _CACHE[keys["full"]].lens.fx
+        halves = (_half_fx(views[k::2], dets[k::2]) for k in (0, 1))
+        _CACHE[keys["split"]] = _split_half(*halves, fx)
     lens_cal = _CACHE[keys["full"]]
-    if "even" in got:
-        _CACHE[keys["split"]] = _split_half(got["even"], got["odd"], lens_cal.lens.fx)
     lens_rec = lens_cal.to_dict()
     lens_rec.pop("seconds", None)  # a run time: the calibration file is the same every run
     lens_rec["fx_u_rel"] = float(_CACHE[keys["split"]])
@@ -286,16 +289,22 @@ def _views_key(views: Sequence[Any], salt: bytes) -> str:
     return "lens/" + h.hexdigest()
 
 
-def _lens_calibration(views: Sequence[Any]) -> Any:
+def _detect(views: Sequence[Any]) -> list[tuple[np.ndarray, np.ndarray]]:
+    from gonio.calibration.lens import detect_views, make_board
+
+    return detect_views(views, make_board())
+
+
+def _lens_calibration(views: Sequence[Any], detections: Sequence[Any]) -> Any:
     from gonio.calibration.lens import calibrate_fisheye, make_board
 
-    return calibrate_fisheye(views, make_board())
+    return calibrate_fisheye(views, make_board(), detections=detections)
 
 
-def _half_fx(views: Sequence[Any]) -> float | None:
+def _half_fx(views: Sequence[Any], detections: Sequence[Any]) -> float | None:
     """The focal length calibrated from a half of the views (None: too few usable views)."""
     try:
-        return float(_lens_calibration(views).lens.fx)
+        return float(_lens_calibration(views, detections).lens.fx)
     except ValueError:
         return None
 

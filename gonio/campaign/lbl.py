@@ -141,6 +141,7 @@ def _stages(
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
+            _warm_instrument(setup)  # before they fork: they inherit the traced geometry
             t = time.perf_counter()
             setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel)
             if setup.lab is not None:
@@ -160,6 +161,7 @@ def _stages(
         # 3. fit
         with ex.blas():  # scipy's BLAS on one thread too (it was loaded after the executor)
             result, compare = _fit(ex, plan, samples, setup.truth, quiet, stream)
+        _plots(ex, setup, samples, result.model)  # the fit's plots: drawn during the budget
         for name, future in saved.items():
             ex.timings[name] = future.result()
         with ex.stage("budget"):  # the GUM budget from the laboratory's knowledge
@@ -171,7 +173,7 @@ def _stages(
         # 4. report
         summary = _report(plan, setup, result, compare, samples, per_angle, budget)
         with ex.stage("plots"):
-            _plots(ex, setup, samples, result.model, summary.get("budget"))
+            _plot_budget(ex, setup, summary.get("budget"))
             ex.wait_plots()
     with ex.stage("report"):
         from gonio.campaign.report import write_report
@@ -254,6 +256,16 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) 
     )  # fmt: skip
     _warm(lab, sim)
     return lab
+
+
+def _warm_instrument(setup: _Setup) -> None:
+    """A realistic simulated instrument's geometry traced and kernels loaded before its
+    calibration captures (:meth:`_SimulatedLBL.prepare`), so that the calibration's jobs,
+    forked from this process, inherit them instead of each tracing and loading them anew
+    (and the capture's workers after them)."""
+    inst = setup.instrument
+    if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
+        inst.prepare(setup.truth)
 
 
 def _warm(lab: Any, sim: Any) -> None:
@@ -662,21 +674,25 @@ def _report(
     return summary
 
 
-def _plots(
-    ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any,
-    budget: Mapping[str, Any] | None = None,
-) -> None:  # fmt: skip
+def _plots(ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any) -> None:
     """With ``model=None`` the hemisphere map, which needs no fit; else the two plots that
-    show the fitted model and the budget (in the plot process, in parallel, when there is
-    one)."""
-    from gonio.campaign.report import draw, draw_budget
+    show the fitted model (in the plot process, in parallel, when there is one)."""
+    from gonio.campaign.report import draw
 
     plan = setup.plan
     if setup.out is None or not plan.plots:
         return
-    if budget is not None:
-        ex.plot(draw_budget, budget, setup.out / "plots", f"{plan.material} ({plan.model})",
-                each=("budget",))  # fmt: skip
     names = ("hemisphere",) if model is None else ("incidence_plane", "residuals")
     ex.plot(draw, samples, model, setup.out / "plots", f"{plan.material} ({plan.model})",
             each=names)  # fmt: skip
+
+
+def _plot_budget(ex: CampaignExecutor, setup: _Setup, budget: Mapping[str, Any] | None) -> None:
+    """``plots/budget.png`` when the campaign has a budget beyond its statistics."""
+    from gonio.campaign.report import draw_budget
+
+    plan = setup.plan
+    if setup.out is None or not plan.plots or budget is None:
+        return
+    ex.plot(draw_budget, budget, setup.out / "plots", f"{plan.material} ({plan.model})",
+            each=("budget",))  # fmt: skip

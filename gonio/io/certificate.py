@@ -114,7 +114,7 @@ class Certificate:
     def factor_at(self, theta_i: ArrayLike, theta_o: ArrayLike, dphi: ArrayLike) -> NDArray:
         """Certified ``R`` interpolated (trilinear) at angles in radians (Δφ as in the grid);
         angles outside the grid raise ``ValueError`` (:meth:`check_covers`)."""
-        from scipy.interpolate import RegularGridInterpolator
+        from gonio.numeric import grid_linear
 
         self.check_covers(theta_i, theta_o)
         shape = np.broadcast_shapes(np.shape(theta_i), np.shape(theta_o), np.shape(dphi))
@@ -126,11 +126,8 @@ class Certificate:
             ),
             axis=-1,
         )
-        f = RegularGridInterpolator(
-            (np.array(self.theta_i_deg), np.array(self.theta_o_deg), np.array(self.dphi_deg)),
-            self.factor,
-        )
-        return f(pts.reshape(-1, 3)).reshape(shape)
+        axes = (self.theta_i_deg, self.theta_o_deg, self.dphi_deg)
+        return grid_linear(axes, self.factor, pts.reshape(-1, 3)).reshape(shape)
 
     def brdf(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """Certified BRDF ``ρ R / π`` at directions in the standard's frame (..., 3)."""
