@@ -347,8 +347,22 @@ def campaign_budget(
     :mod:`gonio.campaign.budget_terms` for each term).
 
     With ``cal`` None (the ideal, uncalibrated instrument) only the statistical term is
-    there.
+    there. Runs with every OpenBLAS on one thread
+    (:class:`~gonio.campaign.blas.SingleThreadBLAS`): the terms' small products and the
+    mirror refits of :func:`~gonio.campaign.budget_terms.direction_fields` gain nothing from
+    a second thread, whose spinning after each call slowed the whole budget 1.5-fold next to
+    a busy process (the campaign leaves scipy's and OpenCV's OpenBLAS at two threads).
     """
+    from gonio.campaign.blas import SingleThreadBLAS
+
+    with SingleThreadBLAS():
+        return _campaign_budget(result, samples, cal, corrections, infos, k)
+
+
+def _campaign_budget(
+    result: Any, samples: Any, cal: Any, corrections: Any, infos: Sequence[Mapping], k: float
+):
+    """:func:`campaign_budget`'s body."""
     from gonio.campaign import budget_terms as bt
     from gonio.campaign.budget import Sensitivity, build_budget
 
@@ -356,6 +370,7 @@ def campaign_budget(
     terms = []
     model = result.model
     if cal is not None:
+        samples = bt.budget_view(samples)  # directions and capture groups computed once
         spec = cal.specification
         terms += bt.certificate_terms(samples, cal.certificate, "standard" in corr)
         terms += _exposure(samples, cal, spec, corr, infos)
