@@ -389,13 +389,13 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
         out.append(("lens_scale", u_f, "1", field(cam1, mc.geometry) / u_f, True))
     slope = spec_rms(cal.specification.get("dome_slope_error"))
     if slope > 0:
-        out += _figure_fields(mc, cam, wo0, ok0, slope, lens)
+        out += _figure_fields(mc, cam, wo0, ok0, slope, lens, uv[pix])
     cal.__dict__["_direction_fields"] = out
     return out
 
 
 def _figure_fields(
-    mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float, lens: Any
+    mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float, lens: Any, uv: NDArray
 ) -> list:
     """The dome figure's direction errors *after* the mirror calibration: each random
     figure also moves the calibration's spots, the refitted geometry absorbs part of the
@@ -408,7 +408,7 @@ def _figure_fields(
     mirror = Mirror(g.kind, g.radius, g.half_separation, 0.5, 0.45)
     keep = np.flatnonzero(ok0)[::FIGURE_STRIDE]  # a few rays per cell are enough
     r = max(mirror.semi_axes)
-    spots = _spot_pixels(mc, lens)
+    spots = _spot_pixels(mc, lens, uv, wo0, ok0)
     out = []
     k_n = FIGURE_REALISATIONS
     h = FIGURE_STEP_RAD  # a small figure, so that the direction change is linear in it
@@ -436,21 +436,20 @@ def _figure_fields(
     return out
 
 
-def _spot_pixels(mc: Any, lens: Any) -> tuple[NDArray, NDArray, NDArray] | None:
+def _spot_pixels(
+    mc: Any, lens: Any, uv: NDArray, wo: NDArray, ok: NDArray
+) -> tuple[NDArray, NDArray, NDArray] | None:
     """The mirror calibration's spots (the directions of
     :data:`gonio.campaign.calibrate.MIRROR_ANGLES_DEG` at the arm's opposite azimuth) as
-    the calibrated geometry images them: pixels, directions and ``∂wo/∂uv`` (n, 3, 2)."""
-    from gonio.calibration.angles import reflection_directions
+    the calibrated geometry images them: pixels, directions and ``∂wo/∂uv`` (n, 3, 2);
+    searched from the pixels ``uv`` of :func:`direction_fields` and their directions."""
     from gonio.campaign.calibrate import MIRROR_ANGLES_DEG
     from gonio.geometry import to_vector
 
     dirs = to_vector(np.radians(MIRROR_ANGLES_DEG), math.pi)
-    uv = lens.pixel_grid().reshape(-1, 2)
-    sel = np.flatnonzero(lens.in_field(uv))[::FIELD_STRIDE]
-    wo, ok = reflection_directions(lens.unproject(uv[sel]), mc.geometry, mc.method)
     if not ok.any():
         return None
-    uv_s, wo_s = uv[sel][ok], wo[ok]
+    uv_s, wo_s = uv[ok], wo[ok]
     out_uv, out_j = [], []
     for d in dirs:
         u = uv_s[int(np.argmax(wo_s @ d))].astype(np.float64)
@@ -523,11 +522,11 @@ def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
     return out
 
 
-def _interpolated(w_dome: NDArray, means: list[NDArray]) -> NDArray:
+def _interpolated(w_dome: NDArray, means: list[NDArray]) -> list[NDArray]:
     """Every field's cell means (grid², 3) interpolated bilinearly at the dome directions,
-    as rows ``(3 · fields, n)``: one sparse (n, grid²) matrix of the four corner weights per
-    direction times each field component (the same sums as a gather of the corners per
-    field, ten times faster)."""
+    as ``3 · fields`` arrays (n,) (x, y, z of each field): one sparse (n, grid²) matrix of
+    the four corner weights per direction times each field component (the same sums as a
+    gather of the corners per field, ten times faster; no (n, 4, 3) temporaries)."""
     from scipy.sparse import csr_matrix
 
     corners, weights = _bilinear(w_dome)
@@ -535,7 +534,7 @@ def _interpolated(w_dome: NDArray, means: list[NDArray]) -> NDArray:
     interp = csr_matrix((weights.ravel(), corners.ravel(), np.arange(0, 4 * n + 1, 4)),
                         shape=(n, GRID * GRID))  # fmt: skip
     cols = np.concatenate(means, axis=1).T  # one matrix-vector product per component
-    return np.stack([interp @ np.ascontiguousarray(col) for col in cols])
+    return [interp @ np.ascontiguousarray(col) for col in cols]
 
 
 #: the direction step (rad, RMS over the samples) at which a field's δy is differenced
