@@ -504,8 +504,10 @@ def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
     c, s = np.cos(rot), np.sin(rot)
     w_dome = np.stack([c * w_s[:, 0] - s * w_s[:, 1], s * w_s[:, 0] + c * w_s[:, 1], w_s[:, 2]], 1)
     moved = _interpolated(w_dome, [f[3] for f in fields])
-    wd = np.ascontiguousarray(w_dome.T)  # components as rows: the loop's arithmetic is
-    wi = samples.wi  # the row-wise sum, norm and rotation of (n, 3), on contiguous arrays
+    # the loop works on the components as contiguous rows: the same sums, norms and
+    # rotations as on (n, 3) arrays (the same bits), without strided column access
+    wd = np.ascontiguousarray(w_dome.T)
+    wi = samples.wi
     f0 = model(wi, w_s)
     out = []
     for j, (name, u, unit, _means, corrected) in enumerate(fields):

@@ -115,3 +115,56 @@ def test_a_direction_field_moves_alpha_as_a_refit(brass):
         j = res.free.index(k)
         assert abs(brute[j]) > 1e-4 * res.params[k]  # a 0.1 % angle scale moves alpha
         assert lin[j] == pytest.approx(brute[j], rel=0.15), (k, lin[j], brute[j])
+
+
+def _campaign_like_samples(n=20_000, seed=0):
+    """Samples in captures: a few incidences, several rotations each (θi ties across φi)."""
+    from gonio.samples import BRDFSamples
+
+    rng = np.random.default_rng(seed)
+    ti = np.radians(rng.choice([10.0, 25.0, 40.0], n))
+    pi = np.radians(rng.choice([-90.0, 0.0, 45.0, 180.0], n))
+    to = np.arccos(rng.uniform(0.05, 1.0, n))
+    return BRDFSamples(ti, pi, to, rng.uniform(-np.pi, np.pi, n), rng.uniform(0.1, 1.0, n),
+                       np.full(n, 0.01))  # fmt: skip
+
+
+def test_capture_groups_number_captures_as_unique_rows():
+    """The captures numbered from the columns' ranks are np.unique(axis=0)'s numbering of
+    the rounded (θi, φi) rows (the independent, slow computation)."""
+    from gonio.campaign.budget_terms import budget_view, capture_groups
+
+    s = _campaign_like_samples()
+    key = np.round(np.stack([s.theta_i, s.phi_i], 1), 9)
+    want = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    cap, inc = capture_groups(s)
+    assert cap.max() == 11 and np.array_equal(cap, want)
+    assert np.array_equal(inc, np.unique(np.round(s.theta_i, 9), return_inverse=True)[1])
+    v = budget_view(s)
+    assert all(np.array_equal(a, b) for a, b in zip(capture_groups(v), (cap, inc)))
+
+
+def test_budget_view_shares_the_columns_and_computes_directions_once():
+    from gonio.campaign.budget_terms import budget_view
+
+    s = _campaign_like_samples(2000)
+    v = budget_view(s)
+    assert v.value is s.value and budget_view(v) is v and len(v) == len(s)
+    assert np.array_equal(v.wi, s.wi) and np.array_equal(v.wo, s.wo)
+    assert v.wi is v.wi and not v.wo.flags.writeable
+
+
+def test_interpolated_fields_are_the_corner_gather():
+    """The sparse interpolation of every field at once equals each field's four corners
+    gathered and weighted (bit for bit: the same four products summed in order)."""
+    from gonio.campaign.budget_terms import GRID, _bilinear, _interpolated
+
+    rng = np.random.default_rng(1)
+    s = _campaign_like_samples(5000)
+    means = [rng.normal(size=(GRID * GRID, 3)) for _ in range(3)]
+    got = _interpolated(s.wo, means)
+    corners, weights = _bilinear(s.wo)
+    for j, m in enumerate(means):
+        want = np.einsum("nk,nkc->nc", weights, m[corners])
+        for c in range(3):
+            assert np.array_equal(got[3 * j + c], want[:, c])

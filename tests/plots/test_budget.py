@@ -40,3 +40,16 @@ def test_plot_writes_a_png(tmp_path):
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     with pytest.raises(ValueError, match="no fitted parameter"):
         plot_budget({**BUDGET, "params": {}}, tmp_path / "x.png")
+
+
+def test_in_view_ticks_draw_the_same_figure(tmp_path, monkeypatch):
+    """Dropping the log locators' out-of-view ticks changes no pixel."""
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    from gonio.plots import budget as pb
+
+    fast = mpimg.imread(plot_budget(BUDGET, tmp_path / "fast.png", title="brass"))
+    monkeypatch.setattr(pb, "_in_view", lambda: lambda base: base)
+    plain = mpimg.imread(plot_budget(BUDGET, tmp_path / "plain.png", title="brass"))
+    assert fast.shape == plain.shape and np.array_equal(fast, plain)
