@@ -53,12 +53,20 @@ def slope_field(
     k = rng.uniform(1.0, 4.0, _N_MODES) * (math.pi / radius)  # cycles per diameter 1..4
     ang = rng.uniform(0.0, 2.0 * math.pi, (2, _N_MODES))
     phase = rng.uniform(0.0, 2.0 * math.pi, (2, _N_MODES))
-    x, y = points[:, 0], points[:, 1]
+    x, y = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
     prof = magnitude * (x * x + y * y) / radius**2 * math.sqrt(2.0 / _N_MODES)
     out = []
     for c in range(2):
-        arg = np.outer(x, k * np.cos(ang[c])) + np.outer(y, k * np.sin(ang[c])) + phase[c][None, :]
-        out.append(prof * np.cos(arg).sum(axis=1))
+        kx, ky = k * np.cos(ang[c]), k * np.sin(ang[c])
+        t = [np.cos(x * kx[j] + y * ky[j] + phase[c][j]) for j in range(_N_MODES)]
+        # the modes summed in the order of numpy's pairwise sum over a row of 12 (eight
+        # partial sums, then the rest), so the field is the same to the bit as the sum of
+        # the (n, 12) array of every mode, without that array (fresh memory of that size
+        # costs more here than the cosines: 0.82 s against 0.15 s on a first call)
+        s = ((t[0] + t[1]) + (t[2] + t[3])) + ((t[4] + t[5]) + (t[6] + t[7]))
+        for j in range(8, _N_MODES):
+            s += t[j]
+        out.append(prof * s)
     return out[0], out[1]
 
 
