@@ -16,7 +16,7 @@ the machine lives here, not in the stages:
   whichever process captured them (OpenCV encodes without the GIL), so saving overlaps the
   next captures; a task's writes are finished before its result is reported.
 * **Parallel jobs** (:meth:`CampaignExecutor.parallel`): a stage's independent pieces that
-  are not incidence angles (the calibration captures, the lens calibrations) on processes
+  are not incidence angles (the calibration captures, the ChArUco detection) on processes
   forked for them.
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
@@ -265,7 +265,7 @@ class CampaignExecutor:
         pickled back); with one worker or one job, here, in order.
 
         For a stage's independent pieces that are not incidence angles, e.g. the
-        calibration captures and the calibrations made from them
+        calibration captures and the ChArUco detection of the board views
         (:func:`gonio.campaign.calibrate.laboratory_calibration`). A job's error is
         raised here (after the others are stopped).
         """
