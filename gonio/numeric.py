@@ -55,8 +55,8 @@ def _pchip_slopes(h: NDArray, m: NDArray) -> NDArray:
         return d
     w1, w2 = 2.0 * h[1:] + h[:-1], h[1:] + 2.0 * h[:-1]
     same = (np.sign(m[1:]) == np.sign(m[:-1])) & (m[1:] != 0.0) & (m[:-1] != 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        whmean = (w1 / m[:-1] + w2 / m[1:]) / (w1 + w2)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a tiny secant:
+        whmean = (w1 / m[:-1] + w2 / m[1:]) / (w1 + w2)  # inf, so its knot's slope is 0
     d[1:-1] = np.where(same, 1.0 / np.where(same, whmean, 1.0), 0.0)
     for k, (h0, h1, m0, m1) in ((0, (h[0], h[1], m[0], m[1])), (-1, (h[-1], h[-2], m[-1], m[-2]))):
         e = ((2.0 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
