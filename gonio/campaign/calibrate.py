@@ -227,10 +227,9 @@ def calibrate(
     got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
     if new_lens:
         dets = got["first"] + got["second"]
-        _CACHE[keys["full"]] = _lens_calibration(views, dets)
-        fx = _CACHE[keys["full"]].lens.fx
+        full = _CACHE[keys["full"]] = _lens_calibration(views, dets)
         halves = (_half_fx(views[k::2], dets[k::2]) for k in (0, 1))
-        _CACHE[keys["split"]] = _split_half(*halves, fx)
+        _CACHE[keys["split"]] = _split_half(*halves, full.lens.fx)
     lens_cal = _CACHE[keys["full"]]
     lens_rec = lens_cal.to_dict()
     lens_rec.pop("seconds", None)  # a run time: the calibration file is the same every run

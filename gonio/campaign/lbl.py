@@ -380,25 +380,33 @@ class _SimulatedLBL:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
         before forking workers, which then inherit them instead of each loading them.
 
-        With the laboratory's calibration ``lab``, its reduction too (the corrections' code,
-        e.g. ``scipy.stats`` for the glare's trimmed mean, ~1 s to import on the shared
-        2-core machine, and the calibrated lens's geometry); and the image codec (OpenCV) the
-        raw frames are written with. Nothing of this changes a result: only modules and
-        deterministic caches are loaded.
+        With the laboratory's calibration ``lab``, its reduction too (the corrections' code
+        and the calibrated lens's geometry); and the image codec (OpenCV) the raw frames are
+        written with. Nothing of this changes a result: only modules and deterministic
+        caches are loaded. Called again for the same sample (a realistic instrument is
+        warmed before its calibration, then with it), the throw-away brackets of the first
+        call are reduced with ``lab`` instead of being shot and reduced again.
         """
         import cv2  # noqa: F401  (the write-behind's TIFF encoder, once instead of per worker)
 
         from gonio.calibration.reduce import Capture, reduce_selected
 
-        _ = self.inst.geometry
-        # one throw-away bracket each (~10 ms) and their reduction: loads the kernels and
-        # fills the reduction's pixel-geometry caches
-        std, bg, meas = (self.shoot(x, 0.5, 0.0, 0) for x in ("standard", None, sample))
-        reduce_selected(Capture(meas), Capture(std), Capture(bg), rng=0)
-        if lab is not None:
-            from gonio.campaign.knowledge import reduce_incidence
+        warm = self.__dict__.pop("_warm_frames", None)
+        if warm is None or warm[0] is not sample:
+            _ = self.inst.geometry
+            # one throw-away bracket each (~10 ms) and their reduction: loads the kernels
+            # and fills the reduction's pixel-geometry caches
+            frames = tuple(self.shoot(x, 0.5, 0.0, 0) for x in ("standard", None, sample))
+            std, bg, meas = frames
+            reduce_selected(Capture(meas), Capture(std), Capture(bg), rng=0)
+            warm = (sample, frames)
+        std, bg, meas = warm[1]
+        if lab is None:  # kept for a call with the calibration
+            self._warm_frames = warm
+            return
+        from gonio.campaign.knowledge import reduce_incidence
 
-            reduce_incidence(std, bg, {0.0: meas}, lab, seeds={0.0: 0})
+        reduce_incidence(std, bg, {0.0: meas}, lab, seeds={0.0: 0})
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}
@@ -688,7 +696,8 @@ def _plots(ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any
 
 
 def _plot_budget(ex: CampaignExecutor, setup: _Setup, budget: Mapping[str, Any] | None) -> None:
-    """``plots/budget.png`` when the campaign has a budget beyond its statistics."""
+    """``plots/budget.png`` (the statistical row alone for the ideal instrument), drawn
+    after the fit's plots were sent, so that those are drawn during the budget."""
     from gonio.campaign.report import draw_budget
 
     plan = setup.plan
