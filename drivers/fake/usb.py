@@ -320,7 +320,8 @@ class RemoteServer:
                 self.refused += 1
                 self._refuse(conn, f"busy: {MAX_CLIENTS} clients are connected")
                 continue
-            threading.Thread(target=self._serve_client, args=(conn,), daemon=True).start()
+            threading.Thread(target=self._serve_client, args=(conn,), daemon=True,
+                             name=f"fake-usb-client {self.address}").start()  # fmt: skip
 
     @staticmethod
     def _refuse(conn: Any, msg: str) -> None:

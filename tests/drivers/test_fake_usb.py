@@ -375,23 +375,26 @@ def test_remote_server_bounds_its_client_threads(bus):
     name, _, _ = bus
     srv = fakeusb.serve_remote(name)
     host, port = srv.address.split(":")
-    n0 = threading.active_count()
+
+    def clients() -> int:  # this server's client threads (others' threads come and go)
+        return sum(t.name == f"fake-usb-client {srv.address}" for t in threading.enumerate())
+
     socks = [socket.create_connection((host, int(port))) for _ in range(fakeusb.MAX_CLIENTS)]
     try:
         # the server starts one thread per accepted client: wait for them (a fixed 0.2 s
         # sleep saw 15 of 16 on a loaded machine), then check it never starts more
-        _wait_until(lambda: threading.active_count() - n0 >= fakeusb.MAX_CLIENTS)
-        assert threading.active_count() - n0 == fakeusb.MAX_CLIENTS
+        _wait_until(lambda: clients() >= fakeusb.MAX_CLIENTS)
+        assert clients() == fakeusb.MAX_CLIENTS
         extra = [socket.create_connection((host, int(port))) for _ in range(10)]
         for s in extra:
             s.settimeout(2.0)
             reply = json.loads(s.makefile("rb").readline())
             assert reply["error"]["msg"].startswith("busy:")
             s.close()
-        assert threading.active_count() - n0 == fakeusb.MAX_CLIENTS and srv.refused == 10
+        assert clients() == fakeusb.MAX_CLIENTS and srv.refused == 10
     finally:
         for s in socks:
             s.close()
         srv.close()
-    _wait_until(lambda: threading.active_count() <= n0)
-    assert threading.active_count() <= n0
+    _wait_until(lambda: clients() == 0)
+    assert clients() == 0
