@@ -295,14 +295,12 @@ def _certified_image(cert: Any, std: Any, wo_dome: np.ndarray, gvalid: np.ndarra
     """The standard's certified reflectance factor at every :data:`SHAPE_STRIDE`-th pixel
     that sees the sample (flat; NaN at the others; 1 where the certificate does not reach),
     cached per pixel geometry, incidence and certificate."""
-    import json
-
     from gonio.calibration.consistency import sidecar_angle
     from gonio.calibration.reduce import standard_factor
 
     theta_i = sidecar_angle(std.meta, "theta_i", "standard metadata")
     rot = std.meta.get("sample_rotation", 0.0), std.meta.get("phi_i", 0.0)
-    key = (id(wo_dome), theta_i, rot, json.dumps(cert.to_dict(), sort_keys=True, default=str))
+    key = (id(wo_dome), theta_i, rot, cert.fingerprint)
     got = _CERTIFIED.get(key)
     if got is not None and got.size == np.asarray(gvalid).size:
         return got

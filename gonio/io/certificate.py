@@ -15,6 +15,7 @@ measurement (GUM), §6 (expanded uncertainty, coverage factor).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -79,9 +80,10 @@ class Certificate:
                 raise ValueError(f"{name} must hold at least 2 increasing angles, got {v!r}")
             object.__setattr__(self, name, v)
             shape.append(len(v))
-        f = np.asarray(self.factor, dtype=np.float64)
+        f = np.array(self.factor, dtype=np.float64)  # a copy, read-only: the table is fixed
         if f.shape != tuple(shape) or not np.isfinite(f).all() or (f <= 0).any():
             raise ValueError(f"factor must be positive and finite with shape {tuple(shape)}")
+        f.setflags(write=False)
         object.__setattr__(self, "factor", f)
         u = float(self.expanded_uncertainty)
         if not (0.0 <= u < 1.0):
@@ -135,6 +137,14 @@ class Certificate:
         wo = np.asarray(wo, dtype=np.float64)
         ti, to, dphi = relative_angles(*np.broadcast_arrays(wi, wo))
         return self.rho / math.pi * self.factor_at(ti, to, dphi)
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """The certificate's identity: its :meth:`to_dict` as sorted JSON (made once; every
+        field, the factor table included, is read-only), e.g. a cache key."""
+        import json
+
+        return json.dumps(self.to_dict(), sort_keys=True, default=str)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (inverse of :meth:`from_dict`)."""

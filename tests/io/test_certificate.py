@@ -29,6 +29,17 @@ def test_json_round_trip():
     assert c2.standard_uncertainty == pytest.approx(0.005)
 
 
+def test_factor_table_is_a_read_only_copy_and_the_fingerprint_its_json():
+    f = np.full((3, 3, 2), 1.02)
+    c = _cert(factor=f)
+    f[0, 0, 0] = 5.0  # the caller's array stays theirs and writable
+    assert c.factor[0, 0, 0] == 1.02 and f.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        c.factor[0, 0, 0] = 5.0
+    assert c.fingerprint == json.dumps(c.to_dict(), sort_keys=True)
+    assert _cert(factor=np.full((3, 3, 2), 1.03)).fingerprint != c.fingerprint
+
+
 def test_interpolation_is_trilinear_and_keeps_the_query_shape():
     f = np.zeros((3, 3, 2))
     f[:] = np.array([1.0, 2.0, 3.0])[:, None, None]  # linear in theta_i
