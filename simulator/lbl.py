@@ -543,7 +543,7 @@ class LBLInstrument:
         # the effects' caches (their realisation is redrawn from the same seed)
         for name in (
             "_true_geometry", "_dome_trace", "_std_model", "_albedo_cache", "_albedo_images",
-            "_resp_field", "_resp_field_sum", "_box",
+            "_resp_field", "_box",
         ):  # fmt: skip
             d.pop(name, None)
 
@@ -879,26 +879,20 @@ class LBLInstrument:
             if a:
                 m = self.mirror
                 coef += a * m.transmittance * m.reflectance * self.background.ambient
-            # (coef · image + bg, in place: the same sums as bg + coef · image, one image
-            # array fewer; fresh arrays of an image's size are what these passes cost)
-            out = self._albedo_image(kind, model, g, rc, alb) * coef
-            out += bg
-            bg = out
+            bg = bg + coef * self._albedo_image(kind, model, g, rc, alb)
         glare = fx.get("veiling_glare", 0.0)
         if glare:
-            resp_field = self.__dict__.get("_resp_field")
-            if resp_field is None:  # the response inside the image circle, 0 outside
+            cached = self.__dict__.get("_resp_field")
+            if cached is None:  # the response inside the image circle (0 outside), its sum
                 resp_field = np.zeros_like(self._response()[0])
                 fi = self.geometry.field_idx
                 resp_field[fi] = self._response()[0][fi]
-                self._resp_field = resp_field
-                self._resp_field_sum = float(resp_field.sum())
+                cached = self._resp_field = (resp_field, float(resp_field.sum()))
+            resp_field, resp_sum = cached
             # (a plain sum, not BLAS's dot: a woken BLAS thread pool costs more than the sum)
             sig = k0 * float(np.sum(rc * lit * (kd0 + ks0 * gv * isq)))
             total = float(bg.sum()) + sig  # (the background is 0 outside the image circle)
-            out = resp_field * (glare * total / self._resp_field_sum)
-            out += bg  # (= bg + veil, as above)
-            bg = out
+            bg = bg + resp_field * (glare * total / resp_sum)
         return bg
 
     def _albedo_image(self, kind, model, g, rc, alb) -> NDArray:
