@@ -30,6 +30,15 @@ seconds, or until a URB completes, before ``EAGAIN``: a program waiting on a lon
 integration or a camera event makes about ``1 / reap_hold`` ioctls per second instead of
 spinning.
 
+A file is closed (its claims released, its URBs dropped) when umockdev marks its client
+disconnected, or when the program's end of the client's socket is found hung up. The second
+test is needed because umockdev never notices a program that dies while its last answer is
+on the way: the failed write of that answer ends umockdev's reading of the socket without
+closing it (``IoctlClient.complete_async`` in ``umockdev-ioctl.vala``, 0.17), so the client
+stays "connected" for as long as the bus runs, and its claim would make every later program
+fail ``EBUSY``. The kernel releases a closed file's claims at once; so does this, looking at
+the sockets (see :meth:`Usbdevfs.connected`) before it grants a claim or opens a file.
+
 Every call runs on the umockdev test bed's worker thread, except the failing of a node's
 files when the bus sees the device unplugged; all state is guarded by the bus's lock.
 
@@ -53,6 +62,8 @@ import array
 import errno
 import logging
 import os
+import select
+import socket
 import struct
 import threading
 import time
@@ -117,6 +128,7 @@ class Node:
     devnode: str
     handler: Any = None
     gone: bool = False
+    socket: str = ""  # the path of umockdev's socket for devnode (its clients connect there)
 
 
 @dataclass
@@ -180,6 +192,7 @@ class Usbdevfs:
         self._set_attribute = set_attribute
         self._backend = FakeUsbBackend(list(fakes))
         self._fds: dict[Any, _Fd] = {}  # IoctlClient -> open file (kept alive while open)
+        self._sockets: dict[Any, tuple[int, int]] = {}  # IoctlClient -> its socket (fd, inode)
         self._ep_queue: dict[tuple[int, int], deque[tuple[_Fd, _Urb]]] = {}
         self._ctx: Any = None  # the test bed's worker main context (ioctls run there)
         self._tick: Any = None
@@ -190,6 +203,22 @@ class Usbdevfs:
         for fd in list(self._fds.values()):
             if fd.node is node:
                 self._fail_fd(fd)
+
+    def connected(self, node: Node, client: Any) -> None:
+        """A program opened ``node``: note the socket umockdev accepted for ``client``.
+
+        umockdev's listener for a node accepts one connection and announces its client
+        (``client-connected``) before it accepts the next, so the one accepted socket bound to
+        ``node.socket`` that belongs to no earlier client is this client's.
+        """
+        with self._lock:
+            live = {k: v for k, v in self._sockets.items() if _inode(v[0]) == v[1]}
+            self._sockets = live
+            taken = {ino for _, ino in live.values()}
+            for n, ino in _accepted(node.socket):
+                if ino not in taken:
+                    live[client] = (n, ino)
+                    return
 
     def handle(self, node: Node, client: Any) -> bool:
         """Answer one ioctl of ``client`` on ``node`` (now, or later for a waiting reap)."""
@@ -575,8 +604,21 @@ class Usbdevfs:
 
     def _sweep(self) -> None:
         """Forget the files the programs closed (their claims and URBs go with them)."""
-        for client in [c for c in self._fds if not c.get_connected()]:
+        for client in [c for c in self._fds if not c.get_connected() or self._hung_up(c)]:
             self._forget(client)
+
+    def _hung_up(self, client: Any) -> bool:
+        """Whether the program's end of ``client``'s socket is closed (see the module
+        docstring); False for a client whose socket is not known."""
+        known = self._sockets.get(client)
+        if known is None:
+            return False
+        n, ino = known
+        if _inode(n) != ino:
+            return True  # umockdev closed it (and the number may already be reused)
+        p = select.poll()
+        p.register(n, select.POLLRDHUP)
+        return any(ev & (select.POLLRDHUP | select.POLLHUP | select.POLLERR) for _, ev in p.poll(0))
 
     def _forget(self, client: Any) -> None:
         fd = self._fds.pop(client, None)
@@ -590,6 +632,30 @@ class _Errno(Exception):
     def __init__(self, err: int) -> None:
         super().__init__(os.strerror(err))
         self.errno = err
+
+
+def _inode(n: int) -> int | None:
+    """The inode of this process's file descriptor ``n`` (None if it is not open)."""
+    try:
+        return os.fstat(n).st_ino
+    except OSError:
+        return None
+
+
+def _accepted(path: str) -> list[tuple[int, int]]:
+    """(fd, inode) of this process's accepted (not listening) Unix sockets bound to ``path``."""
+    out = []
+    for name in os.listdir("/proc/self/fd"):
+        try:
+            if not os.readlink(f"/proc/self/fd/{name}").startswith("socket:"):
+                continue
+            with socket.fromfd(int(name), socket.AF_UNIX, socket.SOCK_STREAM) as s:
+                if s.getsockname() != path or s.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN):
+                    continue
+                out.append((int(name), os.fstat(s.fileno()).st_ino))
+        except OSError:
+            continue  # closed meanwhile, or not a Unix socket
+    return out
 
 
 def _u32(data: Any) -> int:

@@ -305,6 +305,7 @@ class UsbfsBus:
         node = Node(
             dev, dev.generation, devnum, syspath, f"/dev/bus/usb/{self.bus:03d}/{devnum:03d}"
         )
+        node.socket = os.path.join(self._root, "ioctl", node.devnode.lstrip("/"))
         self._testbed.add_from_string(_sysfs_record(dev, self.bus, devnum, port))
         node.handler = _make_handler(self._umockdev, self.usbdevfs, node)
         self._testbed.attach_ioctl(node.devnode, node.handler)
@@ -366,5 +367,8 @@ def _make_handler(umockdev: Any, usbdevfs: Usbdevfs, node: Node) -> Any:
     class Handler(umockdev.IoctlBase):
         def do_handle_ioctl(self, client: Any) -> bool:
             return usbdevfs.handle(node, client)
+
+        def do_client_connected(self, client: Any) -> None:
+            usbdevfs.connected(node, client)
 
     return Handler()
