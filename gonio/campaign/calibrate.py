@@ -133,39 +133,63 @@ def take_captures(inst: Any, *, seed: int = 0, parallel: Parallel | None = None)
     capture's seed is drawn here first, in the order of the captures, so the captures are
     the same however the jobs run.
     """
-    from gonio.calibration.lens import board_poses, make_board
-
     run = parallel or _serial
-    gen = np.random.default_rng(seed)
-    spot_seeds = [int(gen.integers(2**62)) for _ in MIRROR_ANGLES_DEG]
-    # the standard through every marked stop, ~half the full well, repeated
-    settings = [{"exposure": LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2, "f_number": n,
-                 "rng": int(gen.integers(2**62))}
-                for _ in range(LADDER_REPEATS) for n in LADDER_STOPS]  # fmt: skip
-    key = "board/" + _key(inst, lens_only=True) + f"/{seed}"
-    views = _CACHE.get(key)
+    draws = _Draws(inst, seed)
     jobs: list[Callable[[], Any]] = []
-    if views is None:
-        board = make_board()
-        poses = board_poses(inst.lens, board, N_BOARD_VIEWS, distance=0.2,
-                            max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
-        half = (len(poses) + 1) // 2
-        jobs += [partial(_render_views, inst, board, poses[:half]),
-                 partial(_render_views, inst, board, poses[half:])]  # fmt: skip
-    jobs += [partial(_spots, inst, spot_seeds), partial(_ladder, inst, settings)]
+    if draws.views is None:
+        half = (len(draws.poses) + 1) // 2
+        jobs += [partial(_render_views, inst, draws.board, draws.poses[:half]),
+                 partial(_render_views, inst, draws.board, draws.poses[half:])]  # fmt: skip
+    jobs += [partial(_spots, inst, draws.spot_seeds), partial(_ladder, inst, draws.settings)]
     got = run(jobs)
-    if views is None:
-        views = _CACHE[key] = got[0] + got[1]
+    if draws.views is None:
+        draws.keep_views(got[0] + got[1])
         got = got[2:]
     spots, ladder = got
-    out = {"board": views, "mirror": spots, "ladder": ladder}
-    if hasattr(inst, "capture_flat"):  # photon transfer: a dark frame, a flat past full well
-        kw = {"exposure": LADDER_EXPOSURE_S}
-        out["photon_transfer"] = {
-            "dark": inst.capture_dark(rng=int(gen.integers(2**62)), **kw),
-            "flat": inst.capture_flat(SATURATING_PHOTONS, rng=int(gen.integers(2**62)), **kw),
-        }
+    out = {"board": draws.views, "mirror": spots, "ladder": ladder}
+    pt = draws.photon_transfer()
+    if pt is not None:
+        out["photon_transfer"] = pt
     return out
+
+
+class _Draws:
+    """The calibration captures' seeds and poses, drawn in the order of the captures (so
+    that the captures are the same however their jobs run), and the board views of this
+    lens if they were rendered before."""
+
+    def __init__(self, inst: Any, seed: int) -> None:
+        from gonio.calibration.lens import board_poses, make_board
+
+        self.inst = inst
+        self.gen = gen = np.random.default_rng(seed)
+        self.spot_seeds = [int(gen.integers(2**62)) for _ in MIRROR_ANGLES_DEG]
+        # the standard through every marked stop, ~half the full well, repeated
+        self.settings = [{"exposure": LADDER_EXPOSURE_S * (n / LADDER_STOPS[-1]) ** 2,
+                          "f_number": n, "rng": int(gen.integers(2**62))}
+                         for _ in range(LADDER_REPEATS) for n in LADDER_STOPS]  # fmt: skip
+        self.key = "board/" + _key(inst, lens_only=True) + f"/{seed}"
+        self.views = _CACHE.get(self.key)
+        if self.views is None:
+            self.board = make_board()
+            self.poses = board_poses(inst.lens, self.board, N_BOARD_VIEWS, distance=0.2,
+                                     max_field_angle=math.radians(75.0), rng=seed)  # fmt: skip
+
+    def keep_views(self, views: list[np.ndarray]) -> None:
+        self.views = _CACHE[self.key] = views
+
+    def photon_transfer(self) -> dict[str, Any] | None:
+        """A dark frame and a flat past full well (photon transfer), drawn last; None for
+        an instrument without them."""
+        inst = self.inst
+        if not hasattr(inst, "capture_flat"):
+            return None
+        kw = {"exposure": LADDER_EXPOSURE_S}
+        return {
+            "dark": inst.capture_dark(rng=int(self.gen.integers(2**62)), **kw),
+            "flat": inst.capture_flat(SATURATING_PHOTONS, rng=int(self.gen.integers(2**62)),
+                                      **kw),
+        }  # fmt: skip
 
 
 def calibrate(
@@ -208,54 +232,101 @@ def calibrate(
     -------
     LabCalibration
     """
-    from gonio.calibration.angles import MirrorGeometry
-    from gonio.calibration.laboratory import LabCalibration
-    from gonio.calibration.mirror import fit_mirror, spot_centroid
-    from gonio.calibration.radiometry import SensorModel
-    from gonio.geometry import to_vector
-
     views = captures["board"]
-    keys = {"full": _views_key(views, b""), "split": _views_key(views, b"split")}
     jobs: dict[str, Callable[[], Any]] = {}
-    new_lens = any(k not in _CACHE for k in keys.values())  # the same views: the same lens
-    if new_lens:  # each view detected once (in two halves), for all three calibrations
+    detect = _lens_cached(views) is None  # the same views: the same lens
+    if detect:  # each view detected once (in two halves), for all three calibrations
         half = (len(views) + 1) // 2
         jobs["first"] = partial(_detect, views[:half])
         jobs["second"] = partial(_detect, views[half:])
     if captures.get("ladder"):
         jobs["fstops"] = partial(_fstops, captures["ladder"])
     got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
-    if new_lens:
-        dets = got["first"] + got["second"]
-        full = _CACHE[keys["full"]] = _lens_calibration(views, dets)
+    lens_rec = _lens_record(views, got["first"] + got["second"] if detect else None)
+    return _assemble(
+        lens_rec, _mirror_points(captures["mirror"], arm_azimuth), got.get("fstops"),
+        captures.get("photon_transfer"), _pixel_pitch(captures["mirror"]), nominal_mirror,
+        method=method, certificate=certificate, specification=specification, design=design,
+    )  # fmt: skip
+
+
+def _lens_cached(views: Sequence[Any]) -> dict[str, Any] | None:
+    """The lens record of these views if they were calibrated before (in this process)."""
+    return _CACHE.get(_views_key(views, b"record"))
+
+
+def _lens_record(views: Sequence[Any], detections: Sequence[Any] | None = None) -> dict:
+    """The lens calibration from the board views (``cv2.fisheye`` on all views) with the
+    focal length's relative uncertainty ``fx_u_rel`` (from the even and the odd views); the
+    views' ChArUco ``detections`` if made already (else detected here); kept per views."""
+    key = _views_key(views, b"record")
+    rec = _CACHE.get(key)
+    if rec is None:
+        dets = list(detections) if detections is not None else _detect(views)
+        full = _lens_calibration(views, dets)
         halves = (_half_fx(views[k::2], dets[k::2]) for k in (0, 1))
-        _CACHE[keys["split"]] = _split_half(*halves, full.lens.fx)
-    lens_cal = _CACHE[keys["full"]]
-    lens_rec = lens_cal.to_dict()
-    lens_rec.pop("seconds", None)  # a run time: the calibration file is the same every run
-    lens_rec["fx_u_rel"] = float(_CACHE[keys["split"]])
-    lens = lens_cal.lens
+        rec = full.to_dict()
+        rec.pop("seconds", None)  # a run time: the calibration file is the same every run
+        rec["fx_u_rel"] = float(_split_half(*halves, full.lens.fx))
+        _CACHE[key] = rec
+    return rec
+
+
+def _mirror_points(spots: Sequence[tuple], arm_azimuth: float = 0.0) -> tuple[list, list]:
+    """The mirror spots' centroids (pixels) and the directions the mirror sends the beam to
+    (the arm's azimuth a, the beam to a + π at the same polar angle)."""
+    from gonio.calibration.mirror import spot_centroid
+    from gonio.calibration.radiometry import SensorModel
+    from gonio.geometry import to_vector
+
     uv, dirs = [], []
-    for theta_i, img, meta in captures["mirror"]:
+    for theta_i, img, meta in spots:
         black = SensorModel.from_metadata(meta).black_level
         u, v, _ = spot_centroid(img, black)
         uv.append((u, v))
-        # the mirror sends the beam (arm azimuth a) to azimuth a + π at the same polar angle
         dirs.append(to_vector(theta_i, arm_azimuth + math.pi))
+    return uv, dirs
+
+
+def _pixel_pitch(spots: Sequence[tuple]) -> float | None:
+    pitch = spots[0][2].get("sensor", {}).get("pixel_pitch_m")
+    return None if pitch is None else float(pitch)
+
+
+def _assemble(
+    lens_rec: Mapping[str, Any],
+    points: tuple[list, list],
+    fstops: Any,
+    photon_transfer: Mapping[str, Any] | None,
+    pitch: float | None,
+    nominal_mirror: Mapping[str, Any],
+    *,
+    method: str,
+    certificate: Any,
+    specification: Mapping[str, Mapping[str, Any]] | None,
+    design: Mapping[str, float] | None,
+):
+    """The :class:`~gonio.calibration.laboratory.LabCalibration` from its parts: the mirror
+    fitted to the spots through the calibrated lens, from the nominal design."""
+    from gonio.calibration.angles import MirrorGeometry
+    from gonio.calibration.laboratory import LabCalibration
+    from gonio.calibration.mirror import fit_mirror
+    from gonio.calibration.reduce import load_lens
+
+    lens_rec = dict(lens_rec)
+    lens = load_lens(lens_rec)
     nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
-    mirror = fit_mirror(uv, dirs, lens, nominal, method=method)
-    fstops = got.get("fstops")
+    mirror = fit_mirror(*points, lens, nominal, method=method)
     sensor = None
-    if captures.get("photon_transfer"):
+    if photon_transfer:
         from gonio.calibration.photon_transfer import saturation_level
 
-        (flat, flat_meta), (dark, _) = (captures["photon_transfer"][k] for k in ("flat", "dark"))
+        (flat, flat_meta), (dark, _) = (photon_transfer[k] for k in ("flat", "dark"))
         sensor = saturation_level(flat, flat_meta, dark)
-    info = {"lens_rms_px": lens_cal.rms, "lens_views": lens_cal.n_views,
+    info = {"lens_rms_px": lens_rec["rms_px"], "lens_views": lens_rec["n_views"],
             "mirror_rms_deg": mirror.rms_deg, "mirror_points": mirror.n_points}  # fmt: skip
-    pitch = captures["mirror"][0][2].get("sensor", {}).get("pixel_pitch_m")
     if pitch is not None:  # the camera's data sheet
-        info["pixel_pitch_m"] = float(pitch)
+        info["pixel_pitch_m"] = pitch
     if design:
         info["design"] = dict(design)
     return LabCalibration(
@@ -350,11 +421,12 @@ def laboratory_calibration(
 
     A ``folder`` holding a ``calibration.json`` made for this physical instrument (its
     ``info["instrument"]``, the instrument's identity) is read instead; otherwise the
-    calibration is made (:func:`take_captures`, :func:`calibrate`), kept in memory for the
-    same physical instrument, and written to ``folder`` if given (a folder copied from
-    another instrument's campaign is calibrated anew). ``parallel``: how the independent
-    jobs of :func:`take_captures` and :func:`calibrate` run (default one after the other;
-    a campaign gives :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
+    calibration is made (the captures of :func:`take_captures` and the analysis of
+    :func:`calibrate`, pipelined: see :func:`_pipelined`), kept in memory for the same
+    physical instrument, and written to ``folder`` if given (a folder copied from another
+    instrument's campaign is calibrated anew). ``parallel``: how the independent jobs run
+    (default one after the other; a campaign gives
+    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
@@ -367,8 +439,7 @@ def laboratory_calibration(
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
                   "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
-        caps = take_captures(inst, seed=seed, parallel=parallel)
-        cal = calibrate(caps, nominal_mirror, method=method, design=design, parallel=parallel)
+        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial)
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)
@@ -380,3 +451,47 @@ def laboratory_calibration(
     if folder is not None:
         cal.write(folder)
     return cal
+
+
+def _pipelined(
+    inst: Any, nominal_mirror: Mapping[str, Any], seed: int, method: str,
+    design: Mapping[str, float], parallel: Parallel,
+):  # fmt: skip
+    """``calibrate(take_captures(inst))`` as three independent jobs, each the instrument's
+    captures of one kind followed by the laboratory's analysis of those captures alone:
+    board views -> lens, mirror spots -> centroids, f-stop ladder -> f-stop table. Only the
+    analyses' results (and the views, kept for the next instrument with this lens) come
+    back from a job; the ladder's 54 frames stay where they were taken. The captures are
+    those of :func:`take_captures` (the same draws), so the calibration is
+    :func:`calibrate`'s bit for bit.
+    """
+    draws = _Draws(inst, seed)
+    got = parallel([
+        partial(_lens_job, inst, draws),
+        partial(_spots_job, inst, draws.spot_seeds),
+        partial(_ladder_job, inst, draws.settings),
+    ])  # fmt: skip
+    (views, lens_rec), (points, pitch), fstops = got
+    if draws.views is None:
+        draws.keep_views(views)
+    _CACHE.setdefault(_views_key(views, b"record"), lens_rec)
+    return _assemble(
+        lens_rec, points, fstops, draws.photon_transfer(), pitch, nominal_mirror,
+        method=method, certificate=None, specification=None, design=design,
+    )  # fmt: skip
+
+
+def _lens_job(inst: Any, draws: _Draws) -> tuple[list[np.ndarray], dict[str, Any]]:
+    views = draws.views
+    if views is None:
+        views = _render_views(inst, draws.board, draws.poses)
+    return views, _lens_record(views)
+
+
+def _spots_job(inst: Any, seeds: Sequence[int]) -> tuple[tuple[list, list], float | None]:
+    spots = _spots(inst, seeds)
+    return _mirror_points(spots), _pixel_pitch(spots)
+
+
+def _ladder_job(inst: Any, settings: list[dict[str, Any]]) -> Any:
+    return _fstops(_ladder(inst, settings))

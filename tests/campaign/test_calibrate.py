@@ -46,3 +46,28 @@ def test_calibration_jobs_in_parallel_give_the_serial_calibration():
     assert cal_par.mirror.to_dict() == cal_serial.mirror.to_dict()
     assert cal_par.fstops.to_dict() == cal_serial.fstops.to_dict()
     assert cal_par.info == cal_serial.info
+
+
+def test_the_pipelined_laboratory_calibration_is_calibrate_of_take_captures():
+    # laboratory_calibration runs each kind of capture and its analysis in one job (views ->
+    # lens, spots -> centroids, ladder -> f-stops): the same draws, so the same calibration
+    inst = LBLInstrument(effects=realise("modern", 3), instrument_seed=3)
+    nominal = inst.mirror.to_dict()
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    cv2.SVDecomp(np.eye(8))  # OpenCV's BLAS loaded, on one thread below (see the test above)
+    design = {"sample_radius": float(inst.sample_radius),
+              "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
+    with threadpool_limits(limits=1):
+        calibrate._CACHE.clear()
+        two_sided = calibrate.calibrate(calibrate.take_captures(inst, seed=5), nominal,
+                                        design=design)  # fmt: skip
+        calibrate._CACHE.clear()
+        with CampaignExecutor(2) as ex:
+            piped = calibrate.laboratory_calibration(inst, nominal, seed=5, parallel=ex.parallel)
+    assert piped.lens == two_sided.lens
+    assert piped.mirror.to_dict() == two_sided.mirror.to_dict()
+    assert piped.fstops.to_dict() == two_sided.fstops.to_dict()
+    assert piped.sensor == two_sided.sensor
+    assert {k: v for k, v in piped.info.items() if k != "instrument"} == two_sided.info
