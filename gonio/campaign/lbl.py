@@ -148,6 +148,7 @@ def _stages(
                 setup.t_calibration = time.perf_counter() - t
         if setup.t_calibration is not None:  # before the capture's workers fork
             ex.timings["calibration"] = setup.t_calibration
+        fields = _budget_fields(ex, setup)  # on the core the serial warm-up leaves idle
         # 2. capture and reduce
         per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
         if plan.restandard_every:  # the lamp's drift from the re-measured standard
@@ -169,7 +170,7 @@ def _stages(
 
             infos = [i for r in per_angle for i in r.get("infos", [])]
             budget = campaign_budget(result, samples, setup.lab, corrections=plan.corrections,
-                                     infos=infos)  # fmt: skip
+                                     infos=infos, fields=fields and fields.result())  # fmt: skip
         # 4. report
         summary = _report(plan, setup, result, compare, samples, per_angle, budget)
         with ex.stage("plots"):
@@ -266,6 +267,16 @@ def _warm_instrument(setup: _Setup) -> None:
     inst = setup.instrument
     if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
         inst.prepare(setup.truth)
+
+
+def _budget_fields(ex: CampaignExecutor, setup: _Setup) -> Any:
+    """The budget's calibration-only part (:func:`gonio.campaign.knowledge.budget_fields`)
+    started ahead, once the calibration is known: its future, or None if there is none."""
+    from gonio.campaign.knowledge import budget_fields, has_budget_fields
+
+    if not has_budget_fields(setup.lab, setup.plan.corrections):
+        return None
+    return ex.ahead(budget_fields, setup.lab, setup.plan.corrections)
 
 
 def _warm(lab: Any, sim: Any) -> None:

@@ -79,3 +79,43 @@ def test_parallel_raises_a_jobs_error_and_leaves_no_process():
         with pytest.raises(ValueError, match="job failed"):
             ex.parallel([lambda: 1, bad, lambda: time.sleep(30)])
     assert mp.active_children() == []
+
+
+def _pid_and(k):
+    import os
+
+    return os.getpid(), k * 3
+
+
+def test_a_job_ahead_runs_beside_the_campaign_or_deferred_with_one_worker():
+    import multiprocessing as mp
+    import os
+
+    calls = []
+
+    def counted(k):
+        calls.append(k)
+        return _pid_and(k)
+
+    with executor.CampaignExecutor(1) as ex:
+        fut = ex.ahead(counted, 4)
+        assert calls == []  # deferred: nothing runs beside a one-worker campaign
+        assert fut.result() == (os.getpid(), 12) and fut.result() == (os.getpid(), 12)
+        assert calls == [4]  # made once
+    with executor.CampaignExecutor(2) as ex:
+        fut = ex.ahead(_pid_and, 5)
+        pid, value = fut.result()
+    assert value == 15 and pid != os.getpid()
+    assert mp.active_children() == []
+
+
+def test_a_failed_campaign_stops_its_job_ahead():
+    import multiprocessing as mp
+
+    t = time.perf_counter()
+    with pytest.raises(RuntimeError, match="stage failed"):
+        with executor.CampaignExecutor(2) as ex:
+            ex.ahead(time.sleep, 30)
+            raise RuntimeError("stage failed")
+    assert time.perf_counter() - t < 10  # terminated, not waited for
+    assert mp.active_children() == []
