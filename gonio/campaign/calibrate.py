@@ -416,6 +416,7 @@ def laboratory_calibration(
     method: str = "eq3",
     seed: int = 0,
     parallel: Parallel | None = None,
+    lens: Any = None,
 ):
     """The calibration of a simulated instrument, made once and kept.
 
@@ -426,7 +427,10 @@ def laboratory_calibration(
     physical instrument, and written to ``folder`` if given (a folder copied from another
     instrument's campaign is calibrated anew). ``parallel``: how the independent jobs run
     (default one after the other; a campaign gives
-    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
+    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`). ``lens``: the future of
+    :func:`lens_part` for this instrument and ``seed`` if it was started ahead (the
+    camera's part needs only the camera: a campaign starts it before the instrument warms
+    up, :meth:`~gonio.campaign.executor.CampaignExecutor.ahead`).
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
@@ -439,7 +443,7 @@ def laboratory_calibration(
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
                   "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
-        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial)
+        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial, lens)
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)
@@ -455,23 +459,25 @@ def laboratory_calibration(
 
 def _pipelined(
     inst: Any, nominal_mirror: Mapping[str, Any], seed: int, method: str,
-    design: Mapping[str, float], parallel: Parallel,
+    design: Mapping[str, float], parallel: Parallel, lens: Any = None,
 ):  # fmt: skip
     """``calibrate(take_captures(inst))`` as three independent jobs, each the instrument's
     captures of one kind followed by the laboratory's analysis of those captures alone:
-    board views -> lens, mirror spots -> centroids, f-stop ladder -> f-stop table. Only the
-    analyses' results (and the views, kept for the next instrument with this lens) come
-    back from a job; the ladder's 54 frames stay where they were taken. The captures are
-    those of :func:`take_captures` (the same draws), so the calibration is
-    :func:`calibrate`'s bit for bit.
+    board views -> lens (:func:`lens_part`; or the future ``lens`` of it, started ahead),
+    mirror spots -> centroids, f-stop ladder -> f-stop table. Only the analyses' results
+    (and the views, kept for the next instrument with this lens) come back from a job; the
+    ladder's 54 frames stay where they were taken. The captures are those of
+    :func:`take_captures` (the same draws), so the calibration is :func:`calibrate`'s bit
+    for bit.
     """
     draws = _Draws(inst, seed)
-    got = parallel([
-        partial(_lens_job, inst, draws),
-        partial(_spots_job, inst, draws.spot_seeds),
-        partial(_ladder_job, inst, draws.settings),
-    ])  # fmt: skip
-    (views, lens_rec), (points, pitch), fstops = got
+    jobs = [partial(_spots_job, inst, draws.spot_seeds), partial(_ladder_job, inst, draws.settings)]
+    if lens is None:
+        (views, lens_rec), *got = parallel([partial(lens_part, inst, seed), *jobs])
+    else:
+        got = parallel(jobs)
+        views, lens_rec = lens.result()
+    (points, pitch), fstops = got
     if draws.views is None:
         draws.keep_views(views)
     _CACHE.setdefault(_views_key(views, b"record"), lens_rec)
@@ -481,7 +487,11 @@ def _pipelined(
     )  # fmt: skip
 
 
-def _lens_job(inst: Any, draws: _Draws) -> tuple[list[np.ndarray], dict[str, Any]]:
+def lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """The camera's part of :func:`laboratory_calibration`: the board views (the
+    instrument's captures, as in :func:`take_captures`) and the lens calibrated from them
+    (the laboratory's, as in :func:`calibrate`): ``(views, lens record)``."""
+    draws = _Draws(inst, seed)
     views = draws.views
     if views is None:
         views = _render_views(inst, draws.board, draws.poses)

@@ -45,9 +45,18 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from functools import partial
 from typing import Any
 
-__all__ = ["CampaignExecutor", "die_with_parent", "drain_writes", "worker_state", "write_behind"]
+__all__ = [
+    "CampaignExecutor",
+    "child_signals",
+    "die_with_parent",
+    "drain_writes",
+    "forking",
+    "worker_state",
+    "write_behind",
+]
 
 #: What a pool process inherits from the campaign (fork), and what in-process tasks see.
 _STATE: dict[str, Any] = {}
@@ -118,13 +127,36 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
+@contextlib.contextmanager
+def forking() -> Iterator[None]:
+    """SIGTERM held back in this thread while it forks children (it is let in afterwards).
+
+    A child inherits the campaign's SIGTERM handler; one killed before its start-up reset
+    it raised that handler's ``KeyboardInterrupt`` and printed a traceback instead of ending
+    (a job forked just before a ``kill PID``). Forked under this, the child starts with
+    SIGTERM blocked, and :func:`child_signals` lets it in once the default action is set.
+    """
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def child_signals() -> None:
+    """In a child forked under :func:`forking`: SIGTERM's default action, then SIGTERM let
+    in (one sent meanwhile ends the child now)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
+
+
 def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
 def _init_worker(state: dict[str, Any], parent: int | None = None) -> None:
     if parent is not None:  # a pool process: default SIGTERM, dies with the campaign
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        child_signals()
         die_with_parent(parent)
     _STATE.clear()
     _STATE.update(state)
@@ -135,7 +167,7 @@ _JOBS: list[Callable[[], Any]] = []
 
 
 def _init_jobs(jobs: list[Callable[[], Any]], parent: int) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    child_signals()
     die_with_parent(parent)
     _JOBS[:] = jobs
 
@@ -217,7 +249,8 @@ class CampaignExecutor:
             from gonio.campaign.plot_worker import PlotWorker, warm_matplotlib
 
             # forked first: it loads matplotlib while this process prepares the instrument
-            self._plotter = PlotWorker(warm_matplotlib)
+            with forking():
+                self._plotter = PlotWorker(warm_matplotlib)
             stack.callback(self._plotter.close)
         stack.callback(self._close_pool, cancel=True)
         stack.callback(self._close_ahead)
@@ -270,7 +303,8 @@ class CampaignExecutor:
         from concurrent.futures import as_completed
 
         pool = self._start_pool(state, prepare)
-        futs = {pool.submit(_pool_task, fn, args): k for k, args in enumerate(calls)}
+        with forking():  # the pool's processes start at the first submit
+            futs = {pool.submit(_pool_task, fn, args): k for k, args in enumerate(calls)}
         import scipy.optimize  # noqa: F401  (loads here while the workers capture)
 
         for f in as_completed(futs):
@@ -301,7 +335,8 @@ class CampaignExecutor:
         )  # fmt: skip
         ok = False
         try:
-            futures = [pool.submit(_job, k) for k in range(len(jobs))]
+            with forking():
+                futures = [pool.submit(_job, k) for k in range(len(jobs))]
             out = [f.result() for f in futures]
             ok = True
             return out
@@ -314,22 +349,29 @@ class CampaignExecutor:
 
     def ahead(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)`` started now on a process forked for it; returns a future whose
-        ``result()`` a later stage takes (``fn``'s result is pickled back). With one worker
-        a deferred call, made at ``result()`` here (nothing runs beside the campaign)."""
+        ``result()`` a later stage takes. The call is inherited by the fork, not pickled
+        (``fn`` may be a closure, ``args`` anything); its result is pickled back. With one
+        worker a deferred call, made at ``result()`` here (nothing runs beside the
+        campaign)."""
         if self.workers == 1:
             return _Deferred(fn, args)
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
+        job = [partial(fn, *args)]
         pool = ProcessPoolExecutor(
-            1, mp_context=mp.get_context("fork"), initializer=_init_jobs, initargs=([], os.getpid())
+            1,
+            mp_context=mp.get_context("fork"),
+            initializer=_init_jobs,
+            initargs=(job, os.getpid()),
         )
         self._ahead.append(pool)
-        return pool.submit(fn, *args)
+        with forking():
+            return pool.submit(_job, 0)
 
     def _close_ahead(self) -> None:
         for pool in self._ahead:
-            if self._failed:
+            if self._failed:  # interrupted or failed: do not wait for the job
                 for proc in list(getattr(pool, "_processes", {}).values()):
                     with contextlib.suppress(OSError):
                         proc.terminate()

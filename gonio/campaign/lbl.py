@@ -141,9 +141,10 @@ def _stages(
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
+            lens = _lens_ahead(ex, setup)  # the camera's part needs only the camera
             _warm_instrument(setup)  # before they fork: they inherit the traced geometry
             t = time.perf_counter()
-            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel)
+            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel, lens)
             if setup.lab is not None:
                 setup.t_calibration = time.perf_counter() - t
         if setup.t_calibration is not None:  # before the capture's workers fork
@@ -232,12 +233,15 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) -> Any:
+def _laboratory(
+    plan: Plan, inst: Any, outp: Path | None, parallel: Any = None, lens: Any = None
+) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
-    jobs run by ``parallel``) and copied to ``OUT/calibration``; None for the ideal
-    instrument, whose design is its truth."""
+    jobs run by ``parallel``, its camera's part the future ``lens`` if started ahead) and
+    copied to ``OUT/calibration``; None for the ideal instrument, whose design is its
+    truth."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
@@ -253,10 +257,23 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) 
     lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=parallel,
+        parallel=parallel, lens=lens,
     )  # fmt: skip
     _warm(lab, sim)
     return lab
+
+
+def _lens_ahead(ex: CampaignExecutor, setup: _Setup) -> Any:
+    """The camera's part of a realistic simulated instrument's calibration (board views,
+    the lens from them: :func:`gonio.campaign.calibrate.lens_part`) started on a forked
+    process before the instrument warms up, which leaves a core idle; its future (None:
+    nothing to calibrate)."""
+    inst = setup.instrument
+    if setup.plan.preset == "ideal" or not isinstance(inst, _SimulatedLBL):
+        return None
+    from gonio.campaign.calibrate import lens_part
+
+    return ex.ahead(lens_part, inst.inst)
 
 
 def _warm_instrument(setup: _Setup) -> None:

@@ -75,12 +75,12 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent
     import signal
     from multiprocessing.connection import Pipe, wait
 
-    from gonio.campaign.executor import die_with_parent
+    from gonio.campaign.executor import child_signals, die_with_parent
 
     # the parent owns this process's lifetime (close(), or EOF when it dies): a Ctrl-C on
     # the terminal reaches the whole process group and would print a traceback from here
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the campaign's SIGTERM handler
+    child_signals()  # not the campaign's SIGTERM handler
     die_with_parent(parent)
     me = os.getpid()
     os.environ["GONIO_NO_NUMBA"] = "1"
