@@ -243,10 +243,11 @@ def calibrate(
         jobs["fstops"] = partial(_fstops, captures["ladder"])
     got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
     lens_rec = _lens_record(views, got["first"] + got["second"] if detect else None)
+    points = _mirror_points(captures["mirror"], arm_azimuth)
     return _assemble(
-        lens_rec, _mirror_points(captures["mirror"], arm_azimuth), got.get("fstops"),
-        captures.get("photon_transfer"), _pixel_pitch(captures["mirror"]), nominal_mirror,
-        method=method, certificate=certificate, specification=specification, design=design,
+        lens_rec, _mirror_fit(points, lens_rec, nominal_mirror, method), got.get("fstops"),
+        captures.get("photon_transfer"), _pixel_pitch(captures["mirror"]),
+        certificate=certificate, specification=specification, design=design,
     )  # fmt: skip
 
 
@@ -288,6 +289,20 @@ def _mirror_points(spots: Sequence[tuple], arm_azimuth: float = 0.0) -> tuple[li
     return uv, dirs
 
 
+def _mirror_fit(
+    points: tuple[list, list], lens_rec: Mapping[str, Any], nominal_mirror: Mapping[str, Any],
+    method: str,
+) -> Any:  # fmt: skip
+    """The dome geometry fitted to the spots through the calibrated lens, from the nominal
+    design (:func:`gonio.calibration.mirror.fit_mirror`)."""
+    from gonio.calibration.angles import MirrorGeometry
+    from gonio.calibration.mirror import fit_mirror
+    from gonio.calibration.reduce import load_lens
+
+    nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
+    return fit_mirror(*points, load_lens(dict(lens_rec)), nominal, method=method)
+
+
 def _pixel_pitch(spots: Sequence[tuple]) -> float | None:
     pitch = spots[0][2].get("sensor", {}).get("pixel_pitch_m")
     return None if pitch is None else float(pitch)
@@ -295,28 +310,20 @@ def _pixel_pitch(spots: Sequence[tuple]) -> float | None:
 
 def _assemble(
     lens_rec: Mapping[str, Any],
-    points: tuple[list, list],
+    mirror: Any,
     fstops: Any,
     photon_transfer: Mapping[str, Any] | None,
     pitch: float | None,
-    nominal_mirror: Mapping[str, Any],
     *,
-    method: str,
     certificate: Any,
     specification: Mapping[str, Mapping[str, Any]] | None,
     design: Mapping[str, float] | None,
 ):
-    """The :class:`~gonio.calibration.laboratory.LabCalibration` from its parts: the mirror
-    fitted to the spots through the calibrated lens, from the nominal design."""
-    from gonio.calibration.angles import MirrorGeometry
+    """The :class:`~gonio.calibration.laboratory.LabCalibration` from its parts (the
+    mirror: :func:`_mirror_fit`)."""
     from gonio.calibration.laboratory import LabCalibration
-    from gonio.calibration.mirror import fit_mirror
-    from gonio.calibration.reduce import load_lens
 
     lens_rec = dict(lens_rec)
-    lens = load_lens(lens_rec)
-    nominal = MirrorGeometry.from_metadata(dict(nominal_mirror))
-    mirror = fit_mirror(*points, lens, nominal, method=method)
     sensor = None
     if photon_transfer:
         from gonio.calibration.photon_transfer import saturation_level
@@ -471,19 +478,22 @@ def _pipelined(
     for bit.
     """
     draws = _Draws(inst, seed)
-    jobs = [partial(_spots_job, inst, draws.spot_seeds), partial(_ladder_job, inst, draws.settings)]
+    ladder = partial(_ladder_job, inst, draws.settings)
     if lens is None:
-        (views, lens_rec), *got = parallel([partial(lens_part, inst, seed), *jobs])
-    else:
-        got = parallel(jobs)
+        (views, lens_rec), (points, pitch), fstops = parallel(
+            [partial(lens_part, inst, seed), partial(_spots_job, inst, draws.spot_seeds), ladder]
+        )
+        mirror = _mirror_fit(points, lens_rec, nominal_mirror, method)
+    else:  # the lens known: the spots' job fits the mirror too
         views, lens_rec = lens.result()
-    (points, pitch), fstops = got
+        mirror_job = partial(_mirror_job, inst, draws.spot_seeds, lens_rec, nominal_mirror, method)
+        (mirror, pitch), fstops = parallel([mirror_job, ladder])
     if draws.views is None:
         draws.keep_views(views)
     _CACHE.setdefault(_views_key(views, b"record"), lens_rec)
     return _assemble(
-        lens_rec, points, fstops, draws.photon_transfer(), pitch, nominal_mirror,
-        method=method, certificate=None, specification=None, design=design,
+        lens_rec, mirror, fstops, draws.photon_transfer(), pitch,
+        certificate=None, specification=None, design=design,
     )  # fmt: skip
 
 
@@ -501,6 +511,14 @@ def lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any
 def _spots_job(inst: Any, seeds: Sequence[int]) -> tuple[tuple[list, list], float | None]:
     spots = _spots(inst, seeds)
     return _mirror_points(spots), _pixel_pitch(spots)
+
+
+def _mirror_job(
+    inst: Any, seeds: Sequence[int], lens_rec: Mapping[str, Any],
+    nominal_mirror: Mapping[str, Any], method: str,
+) -> tuple[Any, float | None]:  # fmt: skip
+    (points, pitch) = _spots_job(inst, seeds)
+    return _mirror_fit(points, lens_rec, nominal_mirror, method), pitch
 
 
 def _ladder_job(inst: Any, settings: list[dict[str, Any]]) -> Any:
