@@ -16,9 +16,12 @@ Two sides, kept apart as in a laboratory:
 :func:`laboratory_calibration` does both once per physical instrument and keeps the result
 (in memory, and as ``calibration.json`` in a folder when one is given): a laboratory
 calibrates its instrument once, not for every campaign (in one process; a new campaign
-process calibrates anew unless the plan names a calibration folder). Its independent jobs
-(board views, mirror spots, f-stop ladder; the board views' detection, the f-stop fit) can run in
-parallel (``parallel``).
+process calibrates anew unless the plan names a calibration folder). It runs the two sides
+as three independent jobs, each one kind of capture followed by the laboratory's analysis of
+those captures alone (board views -> lens, :func:`lens_part`; mirror spots -> dome geometry;
+f-stop ladder -> f-stop table), which can run in parallel (``parallel``); the camera's part,
+which needs nothing but the camera, can be started ahead (``lens``). Either way the
+calibration is :func:`calibrate` of :func:`take_captures`, bit for bit (a test).
 
 References
 ----------
@@ -46,6 +49,7 @@ __all__ = [
     "FrontSurfaceMirror",
     "calibrate",
     "laboratory_calibration",
+    "lens_part",
     "specification",
     "take_captures",
 ]
