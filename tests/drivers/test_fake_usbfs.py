@@ -355,16 +355,22 @@ def test_waiting_client_costs_a_bounded_number_of_ioctls(rig, tmp_path):
     assert got["cpu"] < 0.5 * got["wall"], got
 
 
-def test_a_program_killed_while_waiting_leaves_no_claim_behind(rig, tmp_path):
-    """Ctrl-C on a program blocked in a reap: its interface claim must not outlive it."""
-    bus = rig[0]
-    waiter = subprocess.Popen(
+def _waiter(bus, tmp_path) -> subprocess.Popen:
+    """A program on the bus that claims the interface, prints "waiting" and waits 20 s for
+    an event."""
+    return subprocess.Popen(
         [sys.executable, "-P", "-c", HEADER + WAIT_FOR_EVENT.format(timeout=20000)],
         env=bus.env(),
         stdout=subprocess.PIPE,
         text=True,
         cwd=tmp_path,
     )
+
+
+def test_a_program_killed_while_waiting_leaves_no_claim_behind(rig, tmp_path):
+    """Ctrl-C on a program blocked in a reap: its interface claim must not outlive it."""
+    bus = rig[0]
+    waiter = _waiter(bus, tmp_path)
     try:
         assert waiter.stdout.readline().strip() == "waiting"
         time.sleep(0.1)
@@ -378,17 +384,11 @@ def test_a_program_killed_while_waiting_leaves_no_claim_behind(rig, tmp_path):
 
 def test_a_program_killed_before_its_answer_leaves_no_claim_behind(rig, tmp_path, monkeypatch):
     """A program dies between an ioctl and its answer (a kill at the wrong moment, as seen
-    once in 20 runs of the test above): umockdev never marks that client disconnected, so
+    about once in 20 runs of the test above): umockdev never marks that client disconnected, so
     only the look at its socket frees the claim. The kill is put into that moment here."""
     bus = rig[0]
     fs = bus.usbdevfs
-    waiter = subprocess.Popen(
-        [sys.executable, "-P", "-c", HEADER + WAIT_FOR_EVENT.format(timeout=20000)],
-        env=bus.env(),
-        stdout=subprocess.PIPE,
-        text=True,
-        cwd=tmp_path,
-    )
+    waiter = _waiter(bus, tmp_path)
     armed, killed = threading.Event(), threading.Event()
     real_reap = fs._reap
 
