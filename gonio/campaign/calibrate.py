@@ -18,10 +18,9 @@ Two sides, kept apart as in a laboratory:
 calibrates its instrument once, not for every campaign (in one process; a new campaign
 process calibrates anew unless the plan names a calibration folder). It runs the two sides
 as three independent jobs, each one kind of capture followed by the laboratory's analysis of
-those captures alone (board views -> lens, :func:`lens_part`; mirror spots -> dome geometry;
-f-stop ladder -> f-stop table), which can run in parallel (``parallel``); the camera's part,
-which needs nothing but the camera, can be started ahead (``lens``). Either way the
-calibration is :func:`calibrate` of :func:`take_captures`, bit for bit (a test).
+those captures alone (board views -> lens; mirror spots -> dome geometry;
+f-stop ladder -> f-stop table), which can run in parallel (``parallel``); the calibration is
+:func:`calibrate` of :func:`take_captures`, bit for bit (a test).
 
 References
 ----------
@@ -49,7 +48,6 @@ __all__ = [
     "FrontSurfaceMirror",
     "calibrate",
     "laboratory_calibration",
-    "lens_part",
     "specification",
     "take_captures",
 ]
@@ -427,7 +425,6 @@ def laboratory_calibration(
     method: str = "eq3",
     seed: int = 0,
     parallel: Parallel | None = None,
-    lens: Any = None,
 ):
     """The calibration of a simulated instrument, made once and kept.
 
@@ -438,10 +435,7 @@ def laboratory_calibration(
     physical instrument, and written to ``folder`` if given (a folder copied from another
     instrument's campaign is calibrated anew). ``parallel``: how the independent jobs run
     (default one after the other; a campaign gives
-    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`). ``lens``: the future of
-    :func:`lens_part` for this instrument and ``seed`` if it was started ahead (the
-    camera's part needs only the camera: a campaign starts it before the instrument warms
-    up, :meth:`~gonio.campaign.executor.CampaignExecutor.ahead`).
+    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
@@ -454,7 +448,7 @@ def laboratory_calibration(
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
                   "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
-        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial, lens)
+        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial)
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)
@@ -470,28 +464,23 @@ def laboratory_calibration(
 
 def _pipelined(
     inst: Any, nominal_mirror: Mapping[str, Any], seed: int, method: str,
-    design: Mapping[str, float], parallel: Parallel, lens: Any = None,
+    design: Mapping[str, float], parallel: Parallel,
 ):  # fmt: skip
     """``calibrate(take_captures(inst))`` as three independent jobs, each the instrument's
     captures of one kind followed by the laboratory's analysis of those captures alone:
-    board views -> lens (:func:`lens_part`; or the future ``lens`` of it, started ahead),
-    mirror spots -> centroids, f-stop ladder -> f-stop table. Only the analyses' results
-    (and the views, kept for the next instrument with this lens) come back from a job; the
-    ladder's 54 frames stay where they were taken. The captures are those of
-    :func:`take_captures` (the same draws), so the calibration is :func:`calibrate`'s bit
-    for bit.
+    board views -> lens, mirror spots -> centroids, f-stop ladder -> f-stop table. Only
+    the analyses' results (and the views, kept for the next instrument with this lens) come
+    back from a job; the ladder's 54 frames stay where they were taken. The captures are
+    those of :func:`take_captures` (the same draws), so the calibration is
+    :func:`calibrate`'s bit for bit.
     """
     draws = _Draws(inst, seed)
-    ladder = partial(_ladder_job, inst, draws.settings)
-    if lens is None:
-        (views, lens_rec), (points, pitch), fstops = parallel(
-            [partial(lens_part, inst, seed), partial(_spots_job, inst, draws.spot_seeds), ladder]
-        )
-        mirror = _mirror_fit(points, lens_rec, nominal_mirror, method)
-    else:  # the lens known: the spots' job fits the mirror too
-        views, lens_rec = lens.result()
-        mirror_job = partial(_mirror_job, inst, draws.spot_seeds, lens_rec, nominal_mirror, method)
-        (mirror, pitch), fstops = parallel([mirror_job, ladder])
+    (views, lens_rec), (points, pitch), fstops = parallel([
+        partial(_lens_part, inst, seed),
+        partial(_spots_job, inst, draws.spot_seeds),
+        partial(_ladder_job, inst, draws.settings),
+    ])  # fmt: skip
+    mirror = _mirror_fit(points, lens_rec, nominal_mirror, method)
     if draws.views is None:
         draws.keep_views(views)
     _CACHE.setdefault(_views_key(views, b"record"), lens_rec)
@@ -501,7 +490,7 @@ def _pipelined(
     )  # fmt: skip
 
 
-def lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any]]:
+def _lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any]]:
     """The camera's part of :func:`laboratory_calibration`: the board views (the
     instrument's captures, as in :func:`take_captures`) and the lens calibrated from them
     (the laboratory's, as in :func:`calibrate`): ``(views, lens record)``."""
@@ -515,14 +504,6 @@ def lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any
 def _spots_job(inst: Any, seeds: Sequence[int]) -> tuple[tuple[list, list], float | None]:
     spots = _spots(inst, seeds)
     return _mirror_points(spots), _pixel_pitch(spots)
-
-
-def _mirror_job(
-    inst: Any, seeds: Sequence[int], lens_rec: Mapping[str, Any],
-    nominal_mirror: Mapping[str, Any], method: str,
-) -> tuple[Any, float | None]:  # fmt: skip
-    (points, pitch) = _spots_job(inst, seeds)
-    return _mirror_fit(points, lens_rec, nominal_mirror, method), pitch
 
 
 def _ladder_job(inst: Any, settings: list[dict[str, Any]]) -> Any:

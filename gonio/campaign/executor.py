@@ -18,10 +18,6 @@ the machine lives here, not in the stages:
 * **Parallel jobs** (:meth:`CampaignExecutor.parallel`): a stage's independent pieces that
   are not incidence angles (the calibration captures, the ChArUco detection) on processes
   forked for them.
-* **A job ahead** (:meth:`CampaignExecutor.ahead`): work a later stage needs that depends
-  only on what is known now (the budget's calibration fields, once the calibration is made),
-  on one process forked for it, so that it fills a core the pipeline leaves idle (the
-  instrument's serial warm-up with the calibration) instead of adding to the later stage.
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
@@ -45,7 +41,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from functools import partial
 from typing import Any
 
 __all__ = [
@@ -185,20 +180,6 @@ def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
     return res, busy
 
 
-class _Deferred:
-    """:meth:`CampaignExecutor.ahead` with one worker: the call made at ``result()``."""
-
-    def __init__(self, fn: Callable[..., Any], args: tuple) -> None:
-        self._call: tuple[Callable[..., Any], tuple] | None = (fn, args)
-        self._value: Any = None
-
-    def result(self) -> Any:
-        if self._call is not None:
-            fn, args = self._call
-            self._value, self._call = fn(*args), None
-        return self._value
-
-
 class CampaignExecutor:
     """The machine side of a campaign: BLAS limit, worker pool, I/O thread, plot process.
 
@@ -228,7 +209,6 @@ class CampaignExecutor:
         self.t_start = time.perf_counter()
         self._stack = contextlib.ExitStack()
         self._pool: Any = None
-        self._ahead: list[Any] = []
         self._plotter: Any = None
         self._io: Any = None
         self._failed = False
@@ -253,7 +233,6 @@ class CampaignExecutor:
                 self._plotter = PlotWorker(warm_matplotlib)
             stack.callback(self._plotter.close)
         stack.callback(self._close_pool, cancel=True)
-        stack.callback(self._close_ahead)
         stack.callback(self._close_io)
         return self
 
@@ -346,37 +325,6 @@ class CampaignExecutor:
                     with contextlib.suppress(OSError):
                         proc.terminate()
             pool.shutdown(wait=True, cancel_futures=not ok)
-
-    def ahead(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` started now on a process forked for it; returns a future whose
-        ``result()`` a later stage takes. The call is inherited by the fork, not pickled
-        (``fn`` may be a closure, ``args`` anything); its result is pickled back. With one
-        worker a deferred call, made at ``result()`` here (nothing runs beside the
-        campaign)."""
-        if self.workers == 1:
-            return _Deferred(fn, args)
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        job = [partial(fn, *args)]
-        pool = ProcessPoolExecutor(
-            1,
-            mp_context=mp.get_context("fork"),
-            initializer=_init_jobs,
-            initargs=(job, os.getpid()),
-        )
-        self._ahead.append(pool)
-        with forking():
-            return pool.submit(_job, 0)
-
-    def _close_ahead(self) -> None:
-        for pool in self._ahead:
-            if self._failed:  # interrupted or failed: do not wait for the job
-                for proc in list(getattr(pool, "_processes", {}).values()):
-                    with contextlib.suppress(OSError):
-                        proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
-        self._ahead.clear()
 
     def _start_pool(self, state: dict[str, Any], prepare: Callable[[], None] | None) -> Any:
         import multiprocessing as mp

@@ -340,13 +340,9 @@ def campaign_budget(
     corrections: Iterable[str] | None = None,
     infos: Sequence[Mapping[str, Any]] = (),
     k: float = 2.0,
-    fields: list | None = None,
 ):
     """The GUM budget of a fit from the laboratory's knowledge (see the module docstring of
     :mod:`gonio.campaign.budget_terms` for each term).
-
-    ``fields``: :func:`budget_fields` of ``cal`` if computed already (a campaign computes
-    them once the calibration is made, beside the instrument's warm-up).
 
     With ``cal`` None (the ideal, uncalibrated instrument) only the statistical term is
     there. Runs with every OpenBLAS on one thread
@@ -358,32 +354,12 @@ def campaign_budget(
     from gonio.campaign.blas import SingleThreadBLAS
 
     with SingleThreadBLAS():
-        return _campaign_budget(result, samples, cal, corrections, infos, k, fields)
-
-
-def has_budget_fields(cal: Any, corrections: Iterable[str] | None = None) -> bool:
-    """Whether :func:`budget_fields` has anything to compute for ``cal``."""
-    return cal is not None and "geometry" in set(check_corrections(corrections))
-
-
-def budget_fields(cal: Any, corrections: Iterable[str] | None = None) -> list | None:
-    """The part of a campaign's budget that depends on the calibration alone: the direction
-    fields of the geometric terms (:func:`gonio.campaign.budget_terms.direction_fields`),
-    or None when the budget has no such terms (no calibration, or no geometric
-    correction)."""
-    if not has_budget_fields(cal, corrections):
-        return None
-    from gonio.campaign.blas import SingleThreadBLAS
-    from gonio.campaign.budget_terms import direction_fields
-
-    with SingleThreadBLAS():
-        return direction_fields(cal)
+        return _campaign_budget(result, samples, cal, corrections, infos, k)
 
 
 def _campaign_budget(
-    result: Any, samples: Any, cal: Any, corrections: Any, infos: Sequence[Mapping], k: float,
-    fields: list | None = None,
-):  # fmt: skip
+    result: Any, samples: Any, cal: Any, corrections: Any, infos: Sequence[Mapping], k: float
+):
     """:func:`campaign_budget`'s body."""
     from gonio.campaign import budget_terms as bt
     from gonio.campaign.budget import Sensitivity, build_budget
@@ -407,7 +383,7 @@ def _campaign_budget(
                 wo, ok = pixel_geometry(lens, cal.mirror.geometry, cal.mirror.method)
                 terms += bt.glare_term(samples, model, wo[ok], u, glare_done)
         if "geometry" in corr:
-            terms += bt.direction_terms(samples, model, cal, fields)
+            terms += bt.direction_terms(samples, model, cal)
         sigma = _blur_sigma(cal)
         terms += bt.blur_term(samples, model, sigma)
         terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))

@@ -141,15 +141,13 @@ def _stages(
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
-            lens = _lens_ahead(ex, setup)  # the camera's part needs only the camera
             _warm_instrument(setup)  # before they fork: they inherit the traced geometry
             t = time.perf_counter()
-            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel, lens)
+            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel)
             if setup.lab is not None:
                 setup.t_calibration = time.perf_counter() - t
         if setup.t_calibration is not None:  # before the capture's workers fork
             ex.timings["calibration"] = setup.t_calibration
-        fields = _budget_fields(ex, setup)  # on the core the serial warm-up leaves idle
         # 2. capture and reduce
         per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
         if plan.restandard_every:  # the lamp's drift from the re-measured standard
@@ -171,7 +169,7 @@ def _stages(
 
             infos = [i for r in per_angle for i in r.get("infos", [])]
             budget = campaign_budget(result, samples, setup.lab, corrections=plan.corrections,
-                                     infos=infos, fields=fields and fields.result())  # fmt: skip
+                                     infos=infos)  # fmt: skip
         # 4. report
         summary = _report(plan, setup, result, compare, samples, per_angle, budget)
         with ex.stage("plots"):
@@ -233,15 +231,12 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
-def _laboratory(
-    plan: Plan, inst: Any, outp: Path | None, parallel: Any = None, lens: Any = None
-) -> Any:
+def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
-    jobs run by ``parallel``, its camera's part the future ``lens`` if started ahead) and
-    copied to ``OUT/calibration``; None for the ideal instrument, whose design is its
-    truth."""
+    jobs run by ``parallel``) and copied to ``OUT/calibration``; None for the ideal
+    instrument, whose design is its truth."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
@@ -257,23 +252,10 @@ def _laboratory(
     lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=parallel, lens=lens,
+        parallel=parallel,
     )  # fmt: skip
     _warm(lab, sim)
     return lab
-
-
-def _lens_ahead(ex: CampaignExecutor, setup: _Setup) -> Any:
-    """The camera's part of a realistic simulated instrument's calibration (board views,
-    the lens from them: :func:`gonio.campaign.calibrate.lens_part`) started on a forked
-    process before the instrument warms up, which leaves a core idle; its future (None:
-    nothing to calibrate)."""
-    inst = setup.instrument
-    if setup.plan.preset == "ideal" or not isinstance(inst, _SimulatedLBL):
-        return None
-    from gonio.campaign.calibrate import lens_part
-
-    return ex.ahead(lens_part, inst.inst)
 
 
 def _warm_instrument(setup: _Setup) -> None:
@@ -284,16 +266,6 @@ def _warm_instrument(setup: _Setup) -> None:
     inst = setup.instrument
     if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
         inst.prepare(setup.truth)
-
-
-def _budget_fields(ex: CampaignExecutor, setup: _Setup) -> Any:
-    """The budget's calibration-only part (:func:`gonio.campaign.knowledge.budget_fields`)
-    started ahead, once the calibration is known: its future, or None if there is none."""
-    from gonio.campaign.knowledge import budget_fields, has_budget_fields
-
-    if not has_budget_fields(setup.lab, setup.plan.corrections):
-        return None
-    return ex.ahead(budget_fields, setup.lab, setup.plan.corrections)
 
 
 def _warm(lab: Any, sim: Any) -> None:

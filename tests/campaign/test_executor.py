@@ -81,41 +81,35 @@ def test_parallel_raises_a_jobs_error_and_leaves_no_process():
     assert mp.active_children() == []
 
 
-def _pid_and(k):
-    import os
+def _slow_start_then_default_sigterm():
+    time.sleep(0.3)  # SIGTERM arrives here, before the start-up below
+    executor.child_signals()
+    time.sleep(30)
 
-    return os.getpid(), k * 3
 
-
-def test_a_job_ahead_runs_beside_the_campaign_or_deferred_with_one_worker():
+def test_a_child_forked_under_the_guard_ends_on_an_early_sigterm(capfd):
+    """A child killed before its start-up has reset the campaign's SIGTERM handler: forked
+    under :func:`executor.forking` it ends by the signal (exit -15), where without the guard
+    it ran the inherited handler (KeyboardInterrupt, a traceback, exit 1)."""
     import multiprocessing as mp
-    import os
+    import signal
 
-    calls = []
+    def handler(signum, frame):
+        raise KeyboardInterrupt("signal SIGTERM")
 
-    def counted(k):
-        calls.append(k)
-        return _pid_and(k)
-
-    with executor.CampaignExecutor(1) as ex:
-        fut = ex.ahead(counted, 4)
-        assert calls == []  # deferred: nothing runs beside a one-worker campaign
-        assert fut.result() == (os.getpid(), 12) and fut.result() == (os.getpid(), 12)
-        assert calls == [4]  # made once
-    with executor.CampaignExecutor(2) as ex:
-        fut = ex.ahead(_pid_and, 5)
-        pid, value = fut.result()
-    assert value == 15 and pid != os.getpid()
-    assert mp.active_children() == []
-
-
-def test_a_failed_campaign_stops_its_job_ahead():
-    import multiprocessing as mp
-
-    t = time.perf_counter()
-    with pytest.raises(RuntimeError, match="stage failed"):
-        with executor.CampaignExecutor(2) as ex:
-            ex.ahead(time.sleep, 30)
-            raise RuntimeError("stage failed")
-    assert time.perf_counter() - t < 10  # terminated, not waited for
-    assert mp.active_children() == []
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        for guarded in (True, False):
+            proc = mp.get_context("fork").Process(target=_slow_start_then_default_sigterm)
+            if guarded:
+                with executor.forking():
+                    proc.start()
+            else:
+                proc.start()
+            time.sleep(0.05)
+            proc.terminate()
+            proc.join(10)
+            assert proc.exitcode == (-signal.SIGTERM if guarded else 1), guarded
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert "KeyboardInterrupt" in capfd.readouterr().err  # (the unguarded child's traceback)

@@ -118,7 +118,7 @@ def test_worker_processes_give_the_same_campaign(tmp_path):
     for col in ("theta_i", "phi_i", "theta_o", "phi_o", "value", "sigma"):
         np.testing.assert_array_equal(getattr(one.samples, col), getattr(two.samples, col))
     assert one.fit.params == two.fit.params
-    # the budget, its calibration fields computed ahead on a forked process with two
+    # the budget too (its calibration made by two forked jobs, or here with one worker)
     assert one.summary["budget"] == two.summary["budget"]
     # samples.csv: rows formatted in the workers, joined here = the one-table file
     assert (tmp_path / "one" / "samples.csv").read_bytes() == (
