@@ -235,8 +235,9 @@ def calibrate(
     LabCalibration
     """
     views = captures["board"]
+    key = _views_key(views, b"record")
     jobs: dict[str, Callable[[], Any]] = {}
-    detect = _lens_cached(views) is None  # the same views: the same lens
+    detect = key not in _CACHE  # the same views: the same lens
     if detect:  # each view detected once (in two halves), for all three calibrations
         half = (len(views) + 1) // 2
         jobs["first"] = partial(_detect, views[:half])
@@ -244,7 +245,7 @@ def calibrate(
     if captures.get("ladder"):
         jobs["fstops"] = partial(_fstops, captures["ladder"])
     got = dict(zip(jobs, (parallel or _serial)(list(jobs.values()))))
-    lens_rec = _lens_record(views, got["first"] + got["second"] if detect else None)
+    lens_rec = _lens_record(views, key, got["first"] + got["second"] if detect else None)
     points = _mirror_points(captures["mirror"], arm_azimuth)
     return _assemble(
         lens_rec, _mirror_fit(points, lens_rec, nominal_mirror, method), got.get("fstops"),
@@ -253,16 +254,11 @@ def calibrate(
     )  # fmt: skip
 
 
-def _lens_cached(views: Sequence[Any]) -> dict[str, Any] | None:
-    """The lens record of these views if they were calibrated before (in this process)."""
-    return _CACHE.get(_views_key(views, b"record"))
-
-
-def _lens_record(views: Sequence[Any], detections: Sequence[Any] | None = None) -> dict:
+def _lens_record(views: Sequence[Any], key: str, detections: Sequence[Any] | None = None) -> dict:
     """The lens calibration from the board views (``cv2.fisheye`` on all views) with the
     focal length's relative uncertainty ``fx_u_rel`` (from the even and the odd views); the
-    views' ChArUco ``detections`` if made already (else detected here); kept per views."""
-    key = _views_key(views, b"record")
+    views' ChArUco ``detections`` if made already (else detected here); kept under ``key``
+    (the views' :func:`_views_key`)."""
     rec = _CACHE.get(key)
     if rec is None:
         dets = list(detections) if detections is not None else _detect(views)
@@ -475,7 +471,7 @@ def _pipelined(
     :func:`calibrate`'s bit for bit.
     """
     draws = _Draws(inst, seed)
-    (views, lens_rec), (points, pitch), fstops = parallel([
+    (views, key, lens_rec), (points, pitch), fstops = parallel([
         partial(_lens_part, inst, seed),
         partial(_spots_job, inst, draws.spot_seeds),
         partial(_ladder_job, inst, draws.settings),
@@ -483,22 +479,23 @@ def _pipelined(
     mirror = _mirror_fit(points, lens_rec, nominal_mirror, method)
     if draws.views is None:
         draws.keep_views(views)
-    _CACHE.setdefault(_views_key(views, b"record"), lens_rec)
+    _CACHE.setdefault(key, lens_rec)  # (made in a job's process: kept here too)
     return _assemble(
         lens_rec, mirror, fstops, draws.photon_transfer(), pitch,
         certificate=None, specification=None, design=design,
     )  # fmt: skip
 
 
-def _lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], dict[str, Any]]:
+def _lens_part(inst: Any, seed: int = 0) -> tuple[list[np.ndarray], str, dict[str, Any]]:
     """The camera's part of :func:`laboratory_calibration`: the board views (the
     instrument's captures, as in :func:`take_captures`) and the lens calibrated from them
-    (the laboratory's, as in :func:`calibrate`): ``(views, lens record)``."""
+    (the laboratory's, as in :func:`calibrate`): ``(views, their key, lens record)``."""
     draws = _Draws(inst, seed)
     views = draws.views
     if views is None:
         views = _render_views(inst, draws.board, draws.poses)
-    return views, _lens_record(views)
+    key = _views_key(views, b"record")
+    return views, key, _lens_record(views, key)
 
 
 def _spots_job(inst: Any, seeds: Sequence[int]) -> tuple[tuple[list, list], float | None]:
