@@ -198,31 +198,38 @@ def veil_shape(
     field = mask.ravel()
     th = np.asarray(field_angle, dtype=np.float64).ravel()
     use = field & ok
+    # the readings are taken at the usable pixels only (with a certificate every
+    # SHAPE_STRIDE-th lit pixel has a factor: an eighth of the image)
     if standard is not None:
         s_sig, ok_s = _longest_signal(standard)
-        d = s_sig - b
-        if factor is not None:
-            fac = np.asarray(factor, dtype=np.float64).ravel()
+        fac = None if factor is None else np.asarray(factor, dtype=np.float64).ravel()
+        if fac is not None:
             use = use & np.isfinite(fac)
-            d = d / np.where(use & (fac > 0), fac, 1.0)
-        use = use & ok_s
-        if use.any():  # the lit pixels (not the occluded ones, which hold only the veil)
-            use = use & (d > 0.25 * float(np.median(d[use])))
-        b = d
+        pix = np.flatnonzero(use & ok_s)
+        vals = s_sig[pix] - b[pix]
+        if fac is not None:
+            f = fac[pix]
+            vals = vals / np.where(f > 0, f, 1.0)
+        if pix.size:  # the lit pixels (not the occluded ones, which hold only the veil)
+            lit = vals > 0.25 * float(np.median(vals))
+            pix, vals = pix[lit], vals[lit]
+    else:
+        pix = np.flatnonzero(use)
+        vals = b[pix]
     out = np.zeros(b.shape)
-    if not use.any():
+    if not pix.size:
         return out
-    edges = np.linspace(0.0, float(th[use].max()) + 1e-9, rings + 1)
-    idx = np.flatnonzero(use)[::stride]
-    ring = np.clip(np.searchsorted(edges, th[idx], side="right") - 1, 0, rings - 1)
-    v, u = np.divmod(idx, mask.shape[1])
-    fv, fu = np.divmod(np.flatnonzero(field), mask.shape[1])
-    az = np.arctan2(v - fv.mean(), u - fu.mean())
+    edges = np.linspace(0.0, float(th[pix].max()) + 1e-9, rings + 1)
+    pix, vals = pix[::stride], vals[::stride]
+    ring = np.clip(np.searchsorted(edges, th[pix], side="right") - 1, 0, rings - 1)
+    v, u = np.divmod(pix, mask.shape[1])
+    cv, cu = _centre(mask)
+    az = np.arctan2(v - cv, u - cu)
     sector = np.minimum(((az + math.pi) / (2.0 * math.pi) * sectors).astype(np.int64), sectors - 1)
     cell = ring * sectors + sector
     n_cells = rings * sectors
     cnt = np.bincount(cell, minlength=n_cells).reshape(rings, sectors)
-    tot = np.bincount(cell, weights=b[idx], minlength=n_cells).reshape(rings, sectors)
+    tot = np.bincount(cell, weights=vals, minlength=n_cells).reshape(rings, sectors)
     means = np.where(cnt >= SHAPE_MIN_PIXELS, tot / np.maximum(cnt, 1), np.nan)
     have = np.isfinite(means).any(axis=1)
     n_ring = cnt.sum(axis=1)  # a ring too small for sectors: its plain mean
@@ -233,9 +240,16 @@ def veil_shape(
     if not good.any():
         out[field] = 1.0
         return out
-    prof = np.interp(th, centres[good], med[good])
-    out[field] = prof[field]
+    out[field] = np.interp(th[field], centres[good], med[good])
     return out / float(out[field].mean())
+
+
+def _centre(mask: NDArray[np.bool_]) -> tuple[float, float]:
+    """Mean row and column of the true pixels of ``mask`` (H, W): the sums of whole
+    indices are exact, so these are the means of the pixels' indices to the bit."""
+    rows, cols = mask.sum(axis=1), mask.sum(axis=0)
+    n = int(rows.sum())
+    return (float(rows @ np.arange(rows.size)) / n, float(cols @ np.arange(cols.size)) / n)
 
 
 def veil(offset: GlareOffset, shape: NDArray[np.float64], dark: NDArray[np.int64]) -> NDArray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -113,3 +114,45 @@ def test_a_child_forked_under_the_guard_ends_on_an_early_sigterm(capfd):
     finally:
         signal.signal(signal.SIGTERM, previous)
     assert "KeyboardInterrupt" in capfd.readouterr().err  # (the unguarded child's traceback)
+
+
+_BLAS_PROBE = """
+import json, sys
+from threadpoolctl import threadpool_info
+from gonio.campaign.executor import CampaignExecutor
+
+def blas():
+    return sorted((d["filepath"].rsplit("/", 1)[-1], d["num_threads"])
+                  for d in threadpool_info() if d["user_api"] == "blas")
+
+def job():
+    import cv2, numpy as np
+    cv2.SVDecomp(np.eye(8))
+    return blas()
+
+assert "cv2" not in sys.modules and "scipy.linalg" not in sys.modules
+with CampaignExecutor(2) as ex:
+    import cv2, scipy.linalg  # as a campaign loads them, after the executor began
+    here = blas()
+    jobs = ex.parallel([job, job])
+print(json.dumps({"here": here, "jobs": jobs, "after": blas()}))
+"""
+
+
+def test_every_blas_is_on_one_thread_in_the_campaign_and_its_children_and_restored_after():
+    # numpy's, scipy's and OpenCV's OpenBLAS, also those a campaign loads after its
+    # executor began (a fresh process): with two threads each next to the campaign's other
+    # busy processes they spun on the cores those need (the lens job's system time)
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE], capture_output=True, text=True,
+                         timeout=120, check=True)  # fmt: skip
+    got = json.loads(out.stdout.splitlines()[-1])
+    libs = {name.split("-")[0] for name, _ in got["here"]}
+    assert {"libscipy_openblas", "libscipy_openblas64_"} <= libs  # scipy's and numpy's
+    assert all(n == 1 for _, n in got["here"])
+    assert all(j == got["here"] for j in got["jobs"])
+    if (os.cpu_count() or 1) > 1:  # the default thread count, restored
+        assert all(n > 1 for _, n in got["after"])
