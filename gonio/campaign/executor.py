@@ -226,6 +226,7 @@ class CampaignExecutor:
         self._plotter: Any = None
         self._io: Any = None
         self._failed = False
+        self._blas_modules = -1
 
     # ------------------------------------------------------------------ lifetime
     def __enter__(self) -> CampaignExecutor:
@@ -236,8 +237,10 @@ class CampaignExecutor:
             # SIGTERM like Ctrl-C: the exit below then stops the children
             previous = signal.signal(signal.SIGTERM, _interrupt)
             stack.callback(signal.signal, signal.SIGTERM, previous)
-        # numpy's BLAS on one thread (the processes forked later inherit it)
+        # numpy's BLAS on one thread (the processes forked later inherit it; those loaded
+        # later are limited before the first children fork: _limit_blas)
         stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
+        self._blas_modules = len(sys.modules)
         if self.want_plots and self.workers > 1:
             from gonio.campaign.plot_worker import PlotWorker, warm_matplotlib
 
@@ -245,15 +248,6 @@ class CampaignExecutor:
             with forking():
                 self._plotter = PlotWorker(warm_matplotlib)
             stack.callback(self._plotter.close)
-        # and the OpenBLAS libraries of scipy (the fits, the mirror spots) and OpenCV (the
-        # lens calibration), loaded here for that (after the plot process: it needs neither).
-        # With two threads each, next to the campaign's other busy processes, their
-        # spinning threads took CPU from them (measured: a cv2.fisheye fit took 0.071 s of
-        # wall and 0.14 s of CPU, with one thread 0.079 s and 0.079 s)
-        import cv2  # noqa: F401
-        import scipy.linalg  # noqa: F401
-
-        stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
         stack.callback(self._close_pool, cancel=True)
         stack.callback(self._close_io)
         return self
@@ -261,6 +255,19 @@ class CampaignExecutor:
     def __exit__(self, *exc: Any) -> bool | None:
         self._failed = exc[0] is not None
         return self._stack.__exit__(*exc)
+
+    def _limit_blas(self) -> None:
+        """Every OpenBLAS loaded since on one thread too, before children are forked (they
+        inherit it; restored when the executor ends): scipy's (the fits, the mirror spots)
+        and OpenCV's own (the lens calibration), which a campaign loads after the executor
+        began. With two threads each, next to the campaign's other busy processes, their
+        spinning threads took CPU from them (measured: a cv2.fisheye fit took 0.071 s of
+        wall and 0.14 s of CPU, with one thread 0.079 s and 0.079 s)."""
+        if len(sys.modules) != self._blas_modules:  # an import may have loaded one
+            from threadpoolctl import threadpool_limits
+
+            self._stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
+            self._blas_modules = len(sys.modules)
 
     # ------------------------------------------------------------------ timings
     @contextlib.contextmanager
@@ -329,6 +336,7 @@ class CampaignExecutor:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
+        self._limit_blas()
         pool = ProcessPoolExecutor(
             min(self.workers, len(jobs)), mp_context=mp.get_context("fork"),
             initializer=_init_jobs, initargs=(jobs, os.getpid()),
@@ -354,6 +362,7 @@ class CampaignExecutor:
 
         if prepare is not None:
             prepare()
+        self._limit_blas()
         # with the fork start method the initializer's arguments are inherited, not pickled
         self._pool = ProcessPoolExecutor(
             self.workers, mp_context=mp.get_context("fork"), initializer=_init_worker,

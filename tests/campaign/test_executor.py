@@ -133,8 +133,8 @@ def job():
 assert "cv2" not in sys.modules and "scipy.linalg" not in sys.modules
 with CampaignExecutor(2) as ex:
     import cv2, scipy.linalg  # as a campaign loads them, after the executor began
-    here = blas()
     jobs = ex.parallel([job, job])
+    here = blas()  # from its first children on
 print(json.dumps({"here": here, "jobs": jobs, "after": blas()}))
 """
 
