@@ -100,13 +100,23 @@ class Geometry:
     qy: NDArray[np.float64]
     isq: NDArray[np.float64]  # 1 / sqrt(cos theta_o) of each candidate
     q_max: float  # largest |Q - S| among candidates
-    pixel_angle: float  # largest angular pitch between neighbouring candidate pixels
     seconds: float  # time taken to build
+    supersampled: bool = False  # several rays (candidate entries) per pixel
 
     @property
     def n_pixels(self) -> int:
         """Number of pixels of the full image."""
         return self.height * self.width
+
+    @property
+    def pixel_angle(self) -> float:
+        """Largest angular pitch between neighbouring candidate pixels (radians; computed
+        on first use: only the mirror component's render needs it); 0 for a supersampled
+        geometry (the mirror-component render uses the one-ray geometry)."""
+        ang = self.__dict__.get("_pixel_angle")
+        if ang is None:
+            ang = self._pixel_angle = 0.0 if self.supersampled else _pitch(self)
+        return ang
 
     def runs(self) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
         """Runs of consecutive candidate pixels: (first pixel, first index into ``idx``) of
@@ -180,16 +190,20 @@ def _trace_geometry(
     rays: int = 1,
     tracer: Callable[[NDArray], dict[str, NDArray]] | None = None,
     keep: Callable[[dict[str, NDArray], NDArray], NDArray] | None = None,
+    field: Geometry | None = None,
 ) -> Geometry:
     """Trace every pixel; ``tracer`` replaces :meth:`Mirror.trace` (an imperfect dome, another
     sample plane) and ``keep(trace, q)`` further selects the candidates (occlusion); both
-    only with one ray per pixel."""
+    only with one ray per pixel. ``field``: a geometry of the same lens whose image-circle
+    pixels and camera rays are taken instead of being unprojected again."""
     t0 = time.perf_counter()
     h, w = lens.height, lens.width
-    uv = lens.pixel_grid().reshape(-1, 2)
-    in_field = lens.in_field(uv)
-    field_idx = np.flatnonzero(in_field)
-    dirs = lens.unproject(uv[field_idx])
+    if field is not None and rays == 1:
+        field_idx, dirs = field.field_idx, field.field_dirs
+    else:
+        uv = lens.pixel_grid().reshape(-1, 2)
+        field_idx = np.flatnonzero(lens.in_field(uv))
+        dirs = lens.unproject(uv[field_idx])
     if rays > 1:
         return _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0)
     tr = mirror.trace(dirs) if tracer is None else tracer(dirs)
@@ -200,22 +214,6 @@ def _trace_geometry(
     wo = tr["wo"]
     sel = np.flatnonzero(on_sample)
     idx = field_idx[sel]
-    # angular pitch: angle to the right-hand and lower neighbours among candidates
-    full = np.zeros((h * w, 3))
-    full[idx] = wo[sel]
-    has = np.zeros(h * w, dtype=bool)
-    has[idx] = True
-    full = full.reshape(h, w, 3)
-    has = has.reshape(h, w)
-    ang = 0.0
-    for a, b, ha, hb in (
-        (full[:, 1:], full[:, :-1], has[:, 1:], has[:, :-1]),
-        (full[1:], full[:-1], has[1:], has[:-1]),
-    ):
-        both = ha & hb
-        if both.any():
-            dots = np.clip(np.sum(a[both] * b[both], axis=-1), -1.0, 1.0)
-            ang = max(ang, float(np.arccos(dots).max()))
     return Geometry(
         height=h,
         width=w,
@@ -229,9 +227,30 @@ def _trace_geometry(
         qy=np.ascontiguousarray(q[sel, 1]),
         isq=1.0 / np.sqrt(wo[sel, 2]),
         q_max=float(np.sqrt((q[sel, 0] ** 2 + q[sel, 1] ** 2).max(initial=0.0))),
-        pixel_angle=ang,
         seconds=time.perf_counter() - t0,
     )
+
+
+def _pitch(g: Geometry) -> float:
+    """:attr:`Geometry.pixel_angle` of a one-ray geometry: the largest angle between the
+    reflected directions of a candidate pixel and its right-hand or lower neighbour."""
+    h, w = g.height, g.width
+    full = np.zeros((h * w, 3))
+    full[g.idx] = np.stack([g.wx, g.wy, g.wz], axis=-1)
+    has = np.zeros(h * w, dtype=bool)
+    has[g.idx] = True
+    full = full.reshape(h, w, 3)
+    has = has.reshape(h, w)
+    ang = 0.0
+    for a, b, ha, hb in (
+        (full[:, 1:], full[:, :-1], has[:, 1:], has[:, :-1]),
+        (full[1:], full[:-1], has[1:], has[:-1]),
+    ):
+        both = ha & hb
+        if both.any():
+            dots = np.clip(np.sum(a[both] * b[both], axis=-1), -1.0, 1.0)
+            ang = max(ang, float(np.arccos(dots).max()))
+    return ang
 
 
 def _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0) -> Geometry:
@@ -285,8 +304,8 @@ def _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0) 
         qy=np.ascontiguousarray(q[:, 1]),
         isq=1.0 / np.sqrt(wo[:, 2]),
         q_max=float(np.sqrt((q[:, 0] ** 2 + q[:, 1] ** 2).max(initial=0.0))),
-        pixel_angle=0.0,  # (the mirror-component render uses the one-ray geometry)
         seconds=time.perf_counter() - t0,
+        supersampled=True,
     )
 
 
@@ -771,7 +790,8 @@ class LBLInstrument:
                         tr["sample_point"], tr["wo"], tr["point"], m, self.sample_radius, fx
                     )
 
-            g = _trace_geometry(m, self.lens, self.sample_radius, 1, tracer, keep)
+            # the ideal trace's camera rays: the same lens and pixels
+            g = _trace_geometry(m, self.lens, self.sample_radius, 1, tracer, keep, self.geometry)
             cache[h] = g
         return g
 

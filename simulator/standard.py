@@ -75,18 +75,46 @@ def _body(cos_o: NDArray) -> NDArray:
     return (1.0 + _BETA * cos_o) / (1.0 + 2.0 * _BETA / 3.0)
 
 
-def _lobe_norm(theta_i: float, n: int = 256) -> float:
-    """``N(θi) = (1/π) ∫ cos^n(angle to mirror)₊ cos θo dωo`` over the upper hemisphere."""
-    # midpoint rule in (cos θo, φ); smooth integrand, 256² nodes: ~1e-6 relative
-    mu = (np.arange(n) + 0.5) / n
-    ph = (np.arange(2 * n) + 0.5) / (2 * n) * 2.0 * math.pi
-    m, p = np.meshgrid(mu, ph, indexing="ij")
-    s = np.sqrt(1.0 - m * m)
-    st, ct = math.sin(theta_i), math.cos(theta_i)
-    # mirror direction (-sin θi, 0, cos θi) for wi = (sin θi, 0, cos θi)
-    c = np.clip(-st * s * np.cos(p) + ct * m, 0.0, None)
-    val = c**_N_LOBE * m
-    return float(val.sum() * (1.0 / n) * (2.0 * math.pi / (2 * n)) / math.pi)
+#: Gauss-Legendre nodes of :func:`_lobe_norms`' polar integral (3e-11 relative against 256)
+_LOBE_NODES = 128
+
+
+def _lobe_norms(theta_i: ArrayLike) -> NDArray[np.float64]:
+    """``N(θi) = (1/π) ∫ cos^n(angle to mirror)₊ cos θo dωo`` over the upper hemisphere
+    (``n = 3``), for every ``θi`` of an array in [0, π/2].
+
+    With ``m = cos θo`` the lobe is ``(A − B cos φ)₊³``, ``A = m cos θi``,
+    ``B = sin θo sin θi``; its integral over the azimuth is closed: ``2π A³ + 3π A B²``
+    where the whole circle is lit (``m ≥ sin θi``: a polynomial in ``m``, integrated
+    exactly), else ``2 (F(π) − F(φ₀))`` with ``cos φ₀ = A/B`` and ``F`` the antiderivative
+    of the cube. The polar integral over ``[0, sin θi]`` is Gauss-Legendre; the integrand
+    vanishes at its upper end to third order. Exact at the ends: ``N(0) = 2/5``,
+    ``N(π/2) = 4/(15π)``; a midpoint rule over (m, φ) with 2048 x 4096 nodes agrees to
+    2e-7 (its own error, a test).
+    """
+    th = np.atleast_1d(np.asarray(theta_i, dtype=np.float64))
+    st, ct = np.sin(th), np.cos(th)
+
+    def whole(m: NDArray) -> NDArray:  # ∫ m (2π ct³ m³ + 3π ct st² m (1 − m²)) dm
+        return 2.0 * math.pi * ct**3 * m**5 / 5.0 + 3.0 * math.pi * ct * st**2 * (
+            m**3 / 3.0 - m**5 / 5.0
+        )
+
+    upper = whole(np.ones_like(st)) - whole(st)
+    x, w = np.polynomial.legendre.leggauss(_LOBE_NODES)
+    m = 0.5 * st[:, None] * (x[None, :] + 1.0)
+    wm = 0.5 * st[:, None] * w[None, :]
+    a = ct[:, None] * m
+    b = st[:, None] * np.sqrt(1.0 - m * m)
+    p0 = np.arccos(np.clip(a / np.where(b > 0.0, b, 1.0), -1.0, 1.0))
+    sp = np.sin(p0)
+
+    def f(p: Any, s: Any) -> NDArray:  # antiderivative of (a − b cos p)³
+        return (a**3 * p - 3.0 * a * a * b * s + 3.0 * a * b * b * (p / 2.0 + s * np.cos(p) / 2.0)
+                - b**3 * (s - s**3 / 3.0))  # fmt: skip
+
+    lit = 2.0 * (f(math.pi, 0.0) - f(p0, sp))
+    return (upper + np.sum(wm * m * lit, axis=1)) / math.pi
 
 
 @functools.cache
@@ -95,14 +123,13 @@ def _tables() -> tuple[Any, NDArray, NDArray]:
     from gonio.numeric import Pchip
 
     th = np.radians([t for t, _ in PTFE_TARGETS])
+    peaks = 1.0 / _lobe_norms(th)
     a = []
-    for t, (_, target) in zip(th, PTFE_TARGETS):
+    for t, (_, target), peak in zip(th, PTFE_TARGETS, peaks):
         b = float(_body(np.array(math.cos(t))))
-        peak = 1.0 / _lobe_norm(float(t))
-        a.append((target - b) / (peak - b))
+        a.append((target - b) / (float(peak) - b))
     grid = np.radians(np.linspace(0.0, 90.0, 91))
-    norm = np.array([_lobe_norm(float(t), 128) for t in grid])
-    return Pchip(th, np.array(a)), grid, norm
+    return Pchip(th, np.array(a)), grid, _lobe_norms(grid)
 
 
 def ptfe_factor(wi: ArrayLike, wo: ArrayLike, scale: float = 1.0) -> NDArray[np.float64]:

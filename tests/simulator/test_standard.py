@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from gonio.simulator.standard import (
     PTFE_TARGETS,
+    _lobe_norms,
     certificate_deviation,
     make_certificate,
     ptfe_factor,
@@ -38,6 +39,26 @@ def test_directional_hemispherical_reflectance_is_rho_at_every_incidence(theta_d
 
     val, _ = integrate.dblquad(f, 0.0, 2 * math.pi, 0.0, math.pi / 2, epsabs=1e-7)
     assert val == pytest.approx(1.0, abs=2e-4)
+
+
+def test_lobe_normalisation_against_quadrature_and_closed_ends():
+    """N(θi) with the azimuth integrated in closed form, against scipy's adaptive quadrature
+    of the clipped lobe over the hemisphere (an independent form), and the exact values
+    N(0) = 2/5 (∫ cos⁴θ dω / π) and N(π/2) = 4/(15π)."""
+    th = np.radians([0.0, 10.0, 45.0, 60.0, 75.0, 89.0, 90.0])
+    got = _lobe_norms(th)
+    assert got[0] == pytest.approx(0.4, rel=1e-12)
+    assert got[-1] == pytest.approx(4.0 / (15.0 * math.pi), rel=1e-9)
+    for t, n in zip(th[1:-1], got[1:-1]):
+        wi = _dir(t)
+        mirror = wi * np.array([-1.0, -1.0, 1.0])
+
+        def f(to, po, mirror=mirror):
+            c = max(float(_dir(to, po) @ mirror), 0.0)
+            return c**3 * math.cos(to) * math.sin(to) / math.pi
+
+        val, _ = integrate.dblquad(f, 0.0, 2 * math.pi, 0.0, math.pi / 2, epsabs=1e-10)
+        assert n == pytest.approx(val, rel=1e-7)
 
 
 def test_forward_scattering_grows_and_backward_falls_towards_grazing():
