@@ -487,7 +487,9 @@ def _refit_geometry(mc: Any, lens: Any, spots: tuple, mirror: Any, slope: Any) -
         return None
 
 
-def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
+def direction_terms(
+    samples: Any, model: Any, cal: Any, fields: list | None = None
+) -> list[Perturbation]:
     """Each direction field of :func:`direction_fields` as the samples' ``δy`` (per unit):
     ``(f(wo + ε δwo) − f(wo)) / ε`` at each sample's dome direction (an arm at azimuth 0),
     the field interpolated bilinearly between the cells' means (a lookup of the cell's own
@@ -495,8 +497,8 @@ def direction_terms(samples: Any, model: Any, cal: Any) -> list[Perturbation]:
     stretched, and alpha's sensitivity to a direction *scale* came out 40-150 times too
     small), and ``ε`` such that the step is :data:`DIRECTION_STEP_RAD` (a unit of a field
     per unit slope or focal scale moves directions by radians, far outside the linear
-    range)."""
-    fields = direction_fields(cal)
+    range). ``fields``: :func:`direction_fields` of ``cal`` if computed elsewhere."""
+    fields = direction_fields(cal) if fields is None else fields
     if not fields:
         return []
     rot = -samples.phi_i

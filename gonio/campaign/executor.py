@@ -11,7 +11,10 @@ the machine lives here, not in the stages:
   sum, so every result, the same in every process (:class:`~gonio.campaign.blas.SingleThreadBLAS`).
 * **A forked worker pool** (:meth:`CampaignExecutor.map`): tasks run in processes forked from
   the campaign, which inherit its imported modules and the instrument with its cached
-  geometry (``state``); with one worker they run in this process, in order.
+  geometry (``state``); with one worker they run in this process, in order. A later
+  stage's job that needs only what the workers inherited may follow the tasks
+  (``then``): a worker runs it while this process merges and fits (the budget's direction
+  fields, 0.2 s, which depend on the calibration alone).
 * **Write-behind** (:func:`write_behind`): raw frames are written on a background thread of
   whichever process captured them (OpenCV encodes without the GIL), so saving overlaps the
   next captures; a task's writes are finished before its result is reported.
@@ -185,6 +188,14 @@ def _job(k: int) -> Any:
     return _JOBS[k]()
 
 
+#: The key of :meth:`CampaignExecutor.map`'s ``then`` job in a pool process's state.
+_THEN = "__then__"
+
+
+def _then_task() -> Any:
+    return _STATE[_THEN]()
+
+
 def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
     """A task in a pool process: its result once its writes are on their way to the disk."""
     try:
@@ -223,6 +234,7 @@ class CampaignExecutor:
         self.t_start = time.perf_counter()
         self._stack = contextlib.ExitStack()
         self._pool: Any = None
+        self._then: Any = None
         self._plotter: Any = None
         self._io: Any = None
         self._failed = False
@@ -291,6 +303,7 @@ class CampaignExecutor:
         *,
         state: dict[str, Any],
         prepare: Callable[[], None] | None = None,
+        then: Callable[[], Any] | None = None,
     ) -> Iterator[tuple[int, Any]]:
         """``fn(*calls[k])`` for every ``k``; yields ``(k, result)``.
 
@@ -299,8 +312,15 @@ class CampaignExecutor:
         so every worker inherits them), in completion order. ``fn`` reads ``state`` through
         :func:`worker_state`. The seconds the tasks' write-behind threads were busy add up
         in :attr:`write_busy_s`.
+
+        ``then`` is a later stage's job (no arguments, inherited like ``state``), run by a
+        worker once every task is done, while this process goes on to its next stages (its
+        result: :meth:`then_result`). With one worker it runs here when its result is
+        asked for.
         """
+        self._then = then
         if self.workers == 1 or len(calls) <= 1:
+            self._limit_blas()  # (the same sums as in a pool's processes)
             _init_worker(state)
             try:
                 for k, args in enumerate(calls):
@@ -310,7 +330,7 @@ class CampaignExecutor:
             return
         from concurrent.futures import as_completed
 
-        pool = self._start_pool(state, prepare)
+        pool = self._start_pool({**state, _THEN: then}, prepare)
         with forking():  # the pool's processes start at the first submit
             futs = {pool.submit(_pool_task, fn, args): k for k, args in enumerate(calls)}
         _preload()
@@ -318,7 +338,23 @@ class CampaignExecutor:
             res, busy = f.result()
             self.write_busy_s += busy
             yield futs[f], res
-        self._close_pool()
+        if then is None:
+            self._close_pool()
+        else:
+            self._then = pool.submit(_then_task)
+
+    def then_result(self) -> Any:
+        """The result of the last :meth:`map`'s ``then`` job, None if it had none (waited
+        for; the pool is closed after it)."""
+        then, self._then = self._then, None
+        if then is None:
+            return None
+        if callable(then):  # one worker: here, now
+            return then()
+        try:
+            return then.result()
+        finally:
+            self._close_pool()
 
     def parallel(self, jobs: Sequence[Callable[[], Any]]) -> list[Any]:
         """``[job() for job in jobs]``, the jobs on up to :attr:`workers` processes forked
@@ -332,6 +368,7 @@ class CampaignExecutor:
         """
         jobs = list(jobs)
         if self.workers == 1 or len(jobs) <= 1:
+            self._limit_blas()  # (the same sums as in forked processes)
             return [job() for job in jobs]
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor

@@ -49,6 +49,7 @@ import numpy as np
 from gonio.campaign import folder as results
 from gonio.campaign.executor import CampaignExecutor, default_workers, worker_state, write_behind
 from gonio.campaign.folder import Frames, group_key
+from gonio.campaign.knowledge import budget_fields
 from gonio.campaign.plan import (
     DEFAULT_ANGLES_DEG,
     Plan,
@@ -170,7 +171,7 @@ def _stages(
 
             infos = [i for r in per_angle for i in r.get("infos", [])]
             budget = campaign_budget(result, samples, setup.lab, corrections=plan.corrections,
-                                     infos=infos)  # fmt: skip
+                                     infos=infos, fields=ex.then_result())  # fmt: skip
         for name, future in saved.items():  # (the budget does not wait for the disk)
             ex.timings[name] = future.result()
         # 4. report
@@ -445,10 +446,13 @@ def _capture_and_reduce(
     prepare = getattr(setup.instrument, "prepare", None)
     if prepare is not None and isinstance(setup.instrument, _SimulatedLBL):
         prepare = partial(prepare, lab=setup.lab)  # the laboratory's reduction warmed too
+    # the budget's direction fields (of the calibration alone): on a worker, during the fit
+    then = setup.lab and partial(budget_fields, setup.lab, setup.plan.corrections)
     with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
         for k, res in ex.map(
-            _incidence, calls, state=state, prepare=prepare and (lambda: prepare(setup.truth))
-        ):
+            _incidence, calls, state=state, prepare=prepare and (lambda: prepare(setup.truth)),
+            then=then,
+        ):  # fmt: skip
             out[k] = res
             bar.update(label=f"θi {angles[k]:g}°")
     return out  # type: ignore[return-value]

@@ -51,6 +51,31 @@ def test_map_in_process_and_on_a_pool_give_the_same_results():
     assert set(ex.timings) == {"x"}
 
 
+def _then():
+    import os
+
+    return executor.worker_state()["offset"], os.getpid()
+
+
+def test_map_then_job_runs_after_the_tasks_here_or_on_a_worker():
+    """A later stage's job queued behind the tasks: with one worker here when asked for,
+    with a pool on a worker (which has the state), the pool closed after its result."""
+    import os
+
+    calls = [(k,) for k in range(4)]
+    for workers in (1, 2):
+        with executor.CampaignExecutor(workers) as ex:
+            got = dict(ex.map(_square, calls, state={"offset": 2}, then=_then))
+            offset, pid = ex.then_result()
+            assert ex.then_result() is None  # taken
+            assert ex._pool is None
+        assert got == {k: k * k + 2 for k in range(4)} and offset == 2
+        assert (pid == os.getpid()) == (workers == 1)
+    with executor.CampaignExecutor(2) as ex:
+        dict(ex.map(_square, calls, state={"offset": 0}))
+        assert ex.then_result() is None and ex._pool is None  # none queued
+
+
 def test_workers_must_be_positive():
     with pytest.raises(ValueError, match="workers"):
         executor.CampaignExecutor(0)
@@ -131,7 +156,7 @@ def job():
     return blas()
 
 assert "cv2" not in sys.modules and "scipy.linalg" not in sys.modules
-with CampaignExecutor(2) as ex:
+with CampaignExecutor(int(sys.argv[1])) as ex:  # (one worker: the jobs run here)
     import cv2, scipy.linalg  # as a campaign loads them, after the executor began
     jobs = ex.parallel([job, job])
     here = blas()  # from its first children on
@@ -139,16 +164,21 @@ print(json.dumps({"here": here, "jobs": jobs, "after": blas()}))
 """
 
 
-def test_every_blas_is_on_one_thread_in_the_campaign_and_its_children_and_restored_after():
+@pytest.mark.parametrize("workers", [2, 1])
+def test_every_blas_is_on_one_thread_in_the_campaign_and_its_children_and_restored_after(
+    workers,
+):
     # numpy's, scipy's and OpenCV's OpenBLAS, also those a campaign loads after its
     # executor began (a fresh process): with two threads each next to the campaign's other
-    # busy processes they spun on the cores those need (the lens job's system time)
+    # busy processes they spun on the cores those need (the lens job's system time); with
+    # one worker, in the campaign's own process (there they ran on two threads, and the
+    # same campaign with --workers 1 differed from the pooled one in the 11th digit)
     import json
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE], capture_output=True, text=True,
-                         timeout=120, check=True)  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE, str(workers)],
+                         capture_output=True, text=True, timeout=120, check=True)  # fmt: skip
     got = json.loads(out.stdout.splitlines()[-1])
     libs = {name.split("-")[0] for name, _ in got["here"]}
     assert {"libscipy_openblas", "libscipy_openblas64_"} <= libs  # scipy's and numpy's
