@@ -345,7 +345,9 @@ class CampaignExecutor:
 
     def then_result(self) -> Any:
         """The result of the last :meth:`map`'s ``then`` job, None if it had none (waited
-        for; the pool is closed after it)."""
+        for). The pool, idle from then on, is closed by :meth:`wait_plots` (joining its
+        processes took 0.04-0.06 s, which the campaign spends waiting for its plots anyway)
+        or when the executor ends."""
         then, self._then = self._then, None
         if then is None:
             return None
@@ -353,8 +355,9 @@ class CampaignExecutor:
             return then()
         try:
             return then.result()
-        finally:
-            self._close_pool()
+        except BaseException:
+            self._close_pool(cancel=True)
+            raise
 
     def parallel(self, jobs: Sequence[Callable[[], Any]]) -> list[Any]:
         """``[job() for job in jobs]``, the jobs on up to :attr:`workers` processes forked
@@ -449,7 +452,9 @@ class CampaignExecutor:
             fn(v, *args)
 
     def wait_plots(self) -> None:
-        """Block until every plot sent so far is drawn; re-raise the first error."""
+        """Block until every plot sent so far is drawn; re-raise the first error. An idle
+        pool left by :meth:`then_result` is closed meanwhile."""
+        self._close_pool()
         if self._plotter is not None:
             self._plotter.wait()
 

@@ -68,6 +68,7 @@ def test_map_then_job_runs_after_the_tasks_here_or_on_a_worker():
             got = dict(ex.map(_square, calls, state={"offset": 2}, then=_then))
             offset, pid = ex.then_result()
             assert ex.then_result() is None  # taken
+            ex.wait_plots()  # (the idle pool closed meanwhile)
             assert ex._pool is None
         assert got == {k: k * k + 2 for k in range(4)} and offset == 2
         assert (pid == os.getpid()) == (workers == 1)
