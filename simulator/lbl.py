@@ -101,7 +101,6 @@ class Geometry:
     isq: NDArray[np.float64]  # 1 / sqrt(cos theta_o) of each candidate
     q_max: float  # largest |Q - S| among candidates
     seconds: float  # time taken to build
-    supersampled: bool = False  # several rays (candidate entries) per pixel
 
     @property
     def n_pixels(self) -> int:
@@ -112,10 +111,11 @@ class Geometry:
     def pixel_angle(self) -> float:
         """Largest angular pitch between neighbouring candidate pixels (radians; computed
         on first use: only the mirror component's render needs it); 0 for a supersampled
-        geometry (the mirror-component render uses the one-ray geometry)."""
+        geometry, whose pixels have several entries (the mirror-component render uses the
+        one-ray geometry)."""
         ang = self.__dict__.get("_pixel_angle")
         if ang is None:
-            ang = self._pixel_angle = 0.0 if self.supersampled else _pitch(self)
+            ang = self._pixel_angle = 0.0 if self.runs() is None else _pitch(self)
         return ang
 
     def runs(self) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
@@ -305,7 +305,6 @@ def _trace_supersampled(mirror, lens, sample_radius, rays, field_idx, dirs, t0) 
         isq=1.0 / np.sqrt(wo[:, 2]),
         q_max=float(np.sqrt((q[:, 0] ** 2 + q[:, 1] ** 2).max(initial=0.0))),
         seconds=time.perf_counter() - t0,
-        supersampled=True,
     )
 
 

@@ -351,13 +351,8 @@ class CampaignExecutor:
         then, self._then = self._then, None
         if then is None:
             return None
-        if callable(then):  # one worker: here, now
-            return then()
-        try:
-            return then.result()
-        except BaseException:
-            self._close_pool(cancel=True)
-            raise
+        # one worker: here, now; else the pool's (an error stops the pool as the executor ends)
+        return then() if callable(then) else then.result()
 
     def parallel(self, jobs: Sequence[Callable[[], Any]]) -> list[Any]:
         """``[job() for job in jobs]``, the jobs on up to :attr:`workers` processes forked
