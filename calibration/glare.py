@@ -56,19 +56,25 @@ SHAPE_SECTORS = 16
 SHAPE_MIN_PIXELS = 8
 
 
-def _longest_signal(capture: Any) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+def _longest_signal(
+    capture: Any, at: NDArray[np.int64] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """The capture's longest-exposure frame: linear signal per unit exposure scale (flat)
-    and where it is unsaturated."""
+    and where it is unsaturated; with ``at`` (flat indices) at those pixels only (the
+    same values: a sample capture's veil is read at the dark pixels alone)."""
     got = capture.__dict__.get("_longest")
     if got is not None:  # cached on the capture (dark region, veils, shape use it)
-        return got
+        return got if at is None else (got[0][at], got[1][at])
     scales = [exposure_scale(m) for m in capture.metas]
     k = int(np.argmax(scales))
     meta = capture.metas[k]
     sensor = SensorModel.from_metadata(meta)
-    raw = np.asarray(capture.images[k], dtype=np.float64).ravel()
+    raw = np.asarray(capture.images[k]).ravel()
+    raw = (raw if at is None else raw[at]).astype(np.float64)
     t = float(meta.get("exposure_s", 0.0))
     sig = (raw - sensor.black_level - sensor.dark_current * t / sensor.gain) / scales[k]
+    if at is not None:
+        return sig, raw < sensor.white_level
     got = capture.__dict__["_longest"] = (sig, raw < sensor.white_level)
     return got
 
@@ -146,11 +152,11 @@ def glare_offset(capture: Any, background: Any, dark: NDArray[np.int64]) -> Glar
     Saturated pixels (in either image) are left out; a dark region without a usable pixel
     gives a zero offset with ``n = 0``.
     """
-    c, ok_c = _longest_signal(capture)
-    b, ok_b = _longest_signal(background)
     idx = np.asarray(dark, dtype=np.int64)
-    use = ok_c[idx] & ok_b[idx]
-    d = (c - b)[idx][use]
+    c, ok_c = _longest_signal(capture, idx)
+    b, ok_b = _longest_signal(background, idx)
+    use = ok_c & ok_b
+    d = (c - b)[use]
     if d.size == 0:
         return GlareOffset(0.0, 0.0, 0)
     # a mean trimmed by 5 % at each end: a dark pixel that the sample does light (a footprint

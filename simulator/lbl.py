@@ -183,6 +183,34 @@ def _check_rays(rays_per_pixel: Any) -> int:
     return n
 
 
+def _sorted_radii(base: list) -> tuple[NDArray, NDArray, NDArray]:
+    """``(order, sorted radii, radii)`` of the unmoved sample points ``hypot(qx, qy)`` of a
+    posed geometry's cached base (:meth:`LBLInstrument._posed`), computed once a base."""
+    if len(base) == 7:
+        r = np.hypot(base[3], base[4])
+        order = np.argsort(r, kind="stable")
+        base.append((order, r[order], r))
+    return base[7]
+
+
+def _near_rim(g: Any, r_min: float) -> NDArray[np.int64]:
+    """Ascending indices of the candidates of ``g`` whose sample point lies farther than
+    ``r_min`` from the axis, ``hypot(qx, qy) > r_min``. A raised sample's points are its
+    unmoved points shifted by at most ``shift``: only those unmoved within ``shift`` of
+    ``r_min`` or beyond are tested (the same values, a fraction of the work)."""
+    r_q = g.__dict__.get("_r_q")
+    if r_q is not None:
+        return np.flatnonzero(r_q > r_min)
+    bound = g.__dict__.get("_r_bound")
+    if bound is None:
+        r_q = g.__dict__["_r_q"] = np.hypot(g.qx, g.qy)
+        return np.flatnonzero(r_q > r_min)
+    (order, r_sorted, _), shift = bound
+    first = np.searchsorted(r_sorted, r_min - shift - 1e-9 * (1.0 + shift))
+    cand = np.sort(order[first:])
+    return cand[np.hypot(g.qx[cand], g.qy[cand]) > r_min]
+
+
 def _trace_geometry(
     mirror: Mirror,
     lens: FisheyeLens,
@@ -842,11 +870,11 @@ class LBLInstrument:
             else:
                 t, w, keep = np.eye(3), [g.wx, g.wy, g.wz], None
             sub = (lambda a: a) if keep is None else (lambda a: c_arr(a[keep]))
-            base = tilted[psi] = (
+            base = tilted[psi] = [
                 t, [c_arr(a) for a in w], sub(g.idx), sub(g.qx), sub(g.qy), sub(rc),
                 1.0 / np.sqrt(w[2]),
-            )  # fmt: skip
-        t, (wx, wy, wz), idx, qx, qy, rc, isq = base
+            ]  # fmt: skip
+        t, (wx, wy, wz), idx, qx, qy, rc, isq = base[:7]
         if h:
             qx = qx - h * wi_dome[0] / wi_dome[2]
             qy = qy - h * wi_dome[1] / wi_dome[2]
@@ -856,6 +884,11 @@ class LBLInstrument:
         )  # fmt: skip
         posed.__dict__["_rc"] = rc
         posed.__dict__["_runs"] = g.runs() if idx is g.idx else False
+        if h:  # its points' radii lie within |h| tan θi of the unmoved ones' (see _near_rim)
+            posed.__dict__["_r_bound"] = (_sorted_radii(base), abs(h) * math.hypot(
+                wi_dome[0] / wi_dome[2], wi_dome[1] / wi_dome[2]))  # fmt: skip
+        else:
+            posed.__dict__["_r_q"] = _sorted_radii(base)[2]
         posed.__dict__["_theta_o_key"] = (id(g), psi)  # (one albedo map per rotation)
         return posed, t @ wi_local
 
@@ -1064,9 +1097,10 @@ class LBLInstrument:
             wx, wy, wz, qx, qy, on, pos = self._all_field_arrays()
         p = qx * bx + qy * by
         litb = (qx * qx + qy * qy - p * p <= r2) & (wz > 0.0)
+        if visible_only:  # the lit candidates' directions only
+            on = np.flatnonzero(litb)
+            wx, wy, wz = wx[on], wy[on], wz[on]
         wo = np.stack([c * wx + s * wy, -s * wx + c * wy, wz], axis=-1)
-        if visible_only:
-            wo = wo[litb]
         acc = np.zeros(wo.shape[0])
         for wi_m, w_m in zip(wis, wsrc):
             f = np.asarray(model.evaluate_unchecked(wi_m, wo), dtype=np.float64)
@@ -1077,7 +1111,7 @@ class LBLInstrument:
             raise ValueError(f"BRDF {model!r} returned non-finite values")
         if visible_only:
             full = np.zeros(n)
-            full[litb] = acc
+            full[on] = acc
             return litb.astype(np.uint8), full, self._ones(n), 0.0, k
         masked = np.where(litb & on, acc, 0.0)
         return (litb & on)[pos].astype(np.uint8), masked[pos], self._ones(n), 0.0, k
@@ -1230,12 +1264,7 @@ class LBLInstrument:
 
                 # only points within h tan θi of the rim can be in its shadow
                 h_rim = fx["holder_rim_height"]
-                r_q = g.__dict__.get("_r_q")
-                if r_q is None:
-                    r_q = g.__dict__["_r_q"] = np.hypot(g.qx, g.qy)
-                near = np.flatnonzero(
-                    r_q > 1.25 * self.sample_radius - h_rim * math.tan(theta_i) - 1e-12
-                )
+                near = _near_rim(g, 1.25 * self.sample_radius - h_rim * math.tan(theta_i) - 1e-12)
                 if near.size:
                     shadow = beam_shadowed(
                         g.qx[near], g.qy[near], wi_dome, self.mirror.half_separation,

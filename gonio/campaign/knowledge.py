@@ -198,6 +198,7 @@ def reduce_incidence(
         shape = veil_shape(bg, gvalid, field_angle(lens), standard=std, factor=fac,
                            stride=1 if fac is not None else SHAPE_STRIDE)  # fmt: skip
         g_s = glare_offset(std, bg, dark)
+        v_s = veil(g_s, shape, dark)  # (the standard's veil: the same for every rotation)
     out = []
     for rot, frames in measured.items():
         meas, n_meas = _fstop_corrected(Capture(laboratory_view(frames, sat)), fst)
@@ -211,7 +212,7 @@ def reduce_incidence(
         }
         if g_s is not None:
             g_m = glare_offset(meas, bg, dark)
-            kw["glare"] = (veil(g_m, shape, dark), veil(g_s, shape, dark))
+            kw["glare"] = (veil(g_m, shape, dark), v_s)
             info["glare"] = {"measured": g_m.value, "standard": g_s.value, "n_dark": g_m.n}
         seed = None if seeds is None else seeds.get(rot)
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)

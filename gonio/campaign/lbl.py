@@ -270,7 +270,7 @@ def _warm_instrument(setup: _Setup) -> None:
     (and the capture's workers after them)."""
     inst = setup.instrument
     if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
-        inst.prepare(setup.truth)
+        inst.prepare(setup.truth, reduce=False)  # (reduced with the calibration, later)
 
 
 def _warm(lab: Any, sim: Any) -> None:
@@ -381,37 +381,38 @@ class _SimulatedLBL:
         return [(img, {**meta, "clock_s": kw["clock_s"]})
                 for img, meta in self._shoot("standard", theta_i, 0.0, kw)]  # fmt: skip
 
-    def prepare(self, sample: Any = "standard", lab: Any = None) -> None:
+    def prepare(self, sample: Any = "standard", lab: Any = None, reduce: bool = True) -> None:
         """Trace the pixel geometry and load the compiled kernels now (both are kept), e.g.
         before forking workers, which then inherit them instead of each loading them.
 
         With the laboratory's calibration ``lab``, its reduction too (the corrections' code
-        and the calibrated lens's geometry); and the image codec (OpenCV) the raw frames are
+        and the pixel geometry the plan's corrections reduce with), else (``reduce``) the
+        reduction with the nominal design; and the image codec (OpenCV) the raw frames are
         written with. Nothing of this changes a result: only modules and deterministic
         caches are loaded. Called again for the same sample (a realistic instrument is
-        warmed before its calibration, then with it), the throw-away brackets of the first
-        call are reduced with ``lab`` instead of being shot and reduced again.
+        warmed before its calibration without a reduction, whose nominal geometry it would
+        not use, then with the calibration), the throw-away brackets of the first call are
+        reduced instead of being shot again.
         """
         import cv2  # noqa: F401  (the write-behind's TIFF encoder, once instead of per worker)
-
-        from gonio.calibration.reduce import Capture, reduce_selected
 
         warm = self.__dict__.pop("_warm_frames", None)
         if warm is None or warm[0] is not sample:
             _ = self.inst.geometry
-            # one throw-away bracket each (~10 ms) and their reduction: loads the kernels
-            # and fills the reduction's pixel-geometry caches
-            frames = tuple(self.shoot(x, 0.5, 0.0, 0) for x in ("standard", None, sample))
-            std, bg, meas = frames
-            reduce_selected(Capture(meas), Capture(std), Capture(bg), rng=0)
-            warm = (sample, frames)
+            # one throw-away bracket each (~10 ms): loads the kernels, traces the scenes
+            warm = (sample, tuple(self.shoot(x, 0.5, 0.0, 0) for x in ("standard", None, sample)))
         std, bg, meas = warm[1]
-        if lab is None:  # kept for a call with the calibration
-            self._warm_frames = warm
-            return
-        from gonio.campaign.knowledge import reduce_incidence
+        if lab is not None:
+            from gonio.campaign.knowledge import reduce_incidence
 
-        reduce_incidence(std, bg, {0.0: meas}, lab, seeds={0.0: 0})
+            reduce_incidence(std, bg, {0.0: meas}, lab, seeds={0.0: 0},
+                             corrections=self.plan.corrections)  # fmt: skip
+        elif reduce:  # fills the reduction's pixel-geometry caches (the nominal design)
+            from gonio.calibration.reduce import Capture, reduce_selected
+
+            reduce_selected(Capture(meas), Capture(std), Capture(bg), rng=0)
+        else:  # kept for a call with the calibration
+            self._warm_frames = warm
 
     def shoot(self, sample: Any, theta_i: float, phi_i: float, seed: int) -> Frames:
         kw: dict[str, Any] = {"rng": seed, "noise": self.plan.noise > 0}

@@ -132,3 +132,19 @@ def test_the_veil_shape_from_the_standard_ignores_the_beams_glow():
     from_std = veil_shape(bg, field, th, standard=std, factor=factor.ravel())
     assert from_bg[centre].mean() > 2.0 * want[centre].mean()
     assert np.allclose(from_std[field.ravel()], want[field.ravel()], rtol=0.02)
+
+
+def test_a_captures_signal_at_chosen_pixels_is_its_whole_signal_there():
+    # glare_offset reads a sample capture's veil at the dark pixels only: the same values
+    from gonio.calibration.glare import _longest_signal
+
+    rng = np.random.default_rng(3)
+    sig = rng.uniform(0.0, 5000.0, (30, 40))  # some pixels saturate
+    frames = [(img, {**meta, "exposure_s": t})
+              for t in (0.004, 0.01) for img, meta in _cap(sig * t / 0.01, rng).frames]  # fmt: skip
+    at = rng.choice(sig.size, 300, replace=False)
+    part = _longest_signal(Capture(frames), at)
+    whole = _longest_signal(Capture(frames))
+    assert np.array_equal(part[0], whole[0][at]) and np.array_equal(part[1], whole[1][at])
+    assert not whole[1].all()  # (saturated pixels are marked)
+    assert np.array_equal(_longest_signal(Capture(frames), at)[0], part[0])

@@ -269,6 +269,26 @@ def test_occlusion_removes_grazing_pixels_only(small):
     assert np.degrees(np.arccos(g0.wz[pos])).min() > 60.0  # only grazing directions
 
 
+@pytest.mark.parametrize("height", [3e-4, -5e-4, 0.0])
+def test_the_rim_test_of_a_raised_sample_reads_only_the_points_near_the_rim(height):
+    # the bound on the moved radii (|h| tan θi) must select exactly the points a test of
+    # every point selects, on both sides of the rim and at every incidence
+    from gonio.simulator.lbl import _near_rim
+
+    inst = LBLInstrument(
+        width=160, height=120, effects={"sample_height": height, "sample_tilt": 0.002}
+    )
+    g = inst._scene_geometry("brdf", 1)
+    rs = inst.sample_radius
+    for th in np.radians([0.0, 20.0, 55.0, 80.0]):
+        wi_local, wi_dome, psi = inst._frames(th, 0.4)
+        posed, _ = inst._posed(g, th, wi_local, wi_dome, psi)
+        r = np.hypot(posed.qx, posed.qy)
+        for r_min in (0.0, 0.6 * rs, 0.95 * rs, float(np.median(r)), float(r.max())):
+            got = _near_rim(posed, r_min)
+            assert np.array_equal(got, np.flatnonzero(r > r_min)), (th, r_min)
+
+
 def test_standard_of_the_real_instrument_is_ptfe_and_its_certificate_says_so():
     inst = LBLInstrument(
         width=160, height=120,
