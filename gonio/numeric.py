@@ -117,7 +117,12 @@ def grid_linear(axes: Sequence[ArrayLike], values: ArrayLike, points: ArrayLike)
             f"points must be (m, {vals.ndim}) for a {vals.ndim}-d grid, got {pts.shape} "
             f"for {len(axes)} axes"
         )
-    idx, frac = [], []
+    # the corners read from the flat table (a gather, not an n-d fancy index), each axis's
+    # weights t and 1 - t made once: the same products and sums as corner by corner
+    flat = np.ascontiguousarray(vals).ravel()
+    step = np.cumprod((1,) + vals.shape[:0:-1])[::-1]  # elements per step along each axis
+    base = np.zeros(pts.shape[0], dtype=np.int64)
+    frac = []
     for d, ax in enumerate(axes):
         ax = np.asarray(ax, dtype=np.float64)
         if ax.ndim != 1 or ax.size < 2 or ax.size != vals.shape[d] or not np.all(np.diff(ax) > 0):
@@ -126,12 +131,13 @@ def grid_linear(axes: Sequence[ArrayLike], values: ArrayLike, points: ArrayLike)
                 f"{ax.size}"
             )
         i = np.clip(np.searchsorted(ax, pts[:, d], side="right") - 1, 0, ax.size - 2)
-        idx.append(i)
-        frac.append((pts[:, d] - ax[i]) / (ax[i + 1] - ax[i]))
+        base += i * int(step[d])
+        t = (pts[:, d] - ax[i]) / (ax[i + 1] - ax[i])
+        frac.append((1.0 - t, t))
     out = np.zeros(pts.shape[0])
     for corner in itertools.product((0, 1), repeat=len(axes)):
-        w = np.ones(pts.shape[0])
-        for c, t in zip(corner, frac):
-            w = w * (t if c else 1.0 - t)
-        out += w * vals[tuple(i + c for i, c in zip(idx, corner))]
+        w = frac[0][corner[0]]  # (1 x the first weight: the same number)
+        for c, f in zip(corner[1:], frac[1:]):
+            w = w * f[c]
+        out += w * flat[base + int(sum(c * int(k) for c, k in zip(corner, step)))]
     return out

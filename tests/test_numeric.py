@@ -75,6 +75,29 @@ def test_grid_linear_is_scipys(seed):
     np.testing.assert_allclose(grid_linear(axes, vals, pts), want, rtol=1e-13, atol=0)
 
 
+@pytest.mark.parametrize("nd", [1, 2, 3, 4])
+def test_grid_linear_is_the_corner_by_corner_sum_to_the_bit(nd):
+    # the gather from the flat table gives the products and sums of the plain n-d form
+    import itertools
+
+    rng = np.random.default_rng(nd)
+    axes = [np.cumsum(rng.uniform(0.5, 3.0, rng.integers(2, 8))) for _ in range(nd)]
+    vals = rng.normal(size=[a.size for a in axes])
+    pts = np.stack([rng.uniform(a[0] - 1.0, a[-1] + 1.0, 3000) for a in axes], 1)
+    idx, frac = [], []
+    for d, ax in enumerate(axes):
+        i = np.clip(np.searchsorted(ax, pts[:, d], side="right") - 1, 0, ax.size - 2)
+        idx.append(i)
+        frac.append((pts[:, d] - ax[i]) / (ax[i + 1] - ax[i]))
+    want = np.zeros(len(pts))
+    for corner in itertools.product((0, 1), repeat=nd):
+        w = np.ones(len(pts))
+        for c, t in zip(corner, frac):
+            w = w * (t if c else 1.0 - t)
+        want += w * vals[tuple(i + c for i, c in zip(idx, corner))]
+    assert np.array_equal(grid_linear(axes, vals, pts), want)
+
+
 def test_grid_linear_bad_input():
     with pytest.raises(ValueError, match="points must be"):
         grid_linear([[0.0, 1.0]], [1.0, 2.0], [0.5])
