@@ -183,21 +183,19 @@ def _check_rays(rays_per_pixel: Any) -> int:
     return n
 
 
-def _sorted_radii(base: list) -> tuple[NDArray, NDArray, NDArray]:
-    """``(order, sorted radii, radii)`` of the unmoved sample points ``hypot(qx, qy)`` of a
-    posed geometry's cached base (:meth:`LBLInstrument._posed`), computed once a base."""
+def _base_radii(base: list) -> NDArray:
+    """The radii ``hypot(qx, qy)`` of the unmoved sample points of a posed geometry's cached
+    base (:meth:`LBLInstrument._posed`), computed once a base."""
     if len(base) == 7:
-        r = np.hypot(base[3], base[4])
-        order = np.argsort(r, kind="stable")
-        base.append((order, r[order], r))
+        base.append(np.hypot(base[3], base[4]))
     return base[7]
 
 
 def _near_rim(g: Any, r_min: float) -> NDArray[np.int64]:
     """Ascending indices of the candidates of ``g`` whose sample point lies farther than
     ``r_min`` from the axis, ``hypot(qx, qy) > r_min``. A raised sample's points are its
-    unmoved points shifted by at most ``shift``: only those unmoved within ``shift`` of
-    ``r_min`` or beyond are tested (the same values, a fraction of the work)."""
+    unmoved points shifted by at most ``shift``: only those unmoved beyond ``r_min -
+    shift`` are tested (the same values, a fraction of the work)."""
     r_q = g.__dict__.get("_r_q")
     if r_q is not None:
         return np.flatnonzero(r_q > r_min)
@@ -205,9 +203,8 @@ def _near_rim(g: Any, r_min: float) -> NDArray[np.int64]:
     if bound is None:
         r_q = g.__dict__["_r_q"] = np.hypot(g.qx, g.qy)
         return np.flatnonzero(r_q > r_min)
-    (order, r_sorted, _), shift = bound
-    first = np.searchsorted(r_sorted, r_min - shift - 1e-9 * (1.0 + shift))
-    cand = np.sort(order[first:])
+    base, shift = bound
+    cand = np.flatnonzero(_base_radii(base) > r_min - shift - 1e-9 * (1.0 + shift))
     return cand[np.hypot(g.qx[cand], g.qy[cand]) > r_min]
 
 
@@ -884,11 +881,9 @@ class LBLInstrument:
         )  # fmt: skip
         posed.__dict__["_rc"] = rc
         posed.__dict__["_runs"] = g.runs() if idx is g.idx else False
-        if h:  # its points' radii lie within |h| tan θi of the unmoved ones' (see _near_rim)
-            posed.__dict__["_r_bound"] = (_sorted_radii(base), abs(h) * math.hypot(
-                wi_dome[0] / wi_dome[2], wi_dome[1] / wi_dome[2]))  # fmt: skip
-        else:
-            posed.__dict__["_r_q"] = _sorted_radii(base)[2]
+        # its points' radii lie within |h| tan θi of the unmoved ones' (see _near_rim)
+        shift = abs(h) * math.hypot(wi_dome[0] / wi_dome[2], wi_dome[1] / wi_dome[2]) if h else 0.0
+        posed.__dict__["_r_bound"] = (base, shift)
         posed.__dict__["_theta_o_key"] = (id(g), psi)  # (one albedo map per rotation)
         return posed, t @ wi_local
 
