@@ -73,9 +73,9 @@ def _longest_signal(
     raw = (raw if at is None else raw[at]).astype(np.float64)
     t = float(meta.get("exposure_s", 0.0))
     sig = (raw - sensor.black_level - sensor.dark_current * t / sensor.gain) / scales[k]
-    if at is not None:
-        return sig, raw < sensor.white_level
-    got = capture.__dict__["_longest"] = (sig, raw < sensor.white_level)
+    got = (sig, raw < sensor.white_level)
+    if at is None:  # (a subset is not kept: the whole frame is what the cache holds)
+        capture.__dict__["_longest"] = got
     return got
 
 
