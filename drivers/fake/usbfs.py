@@ -13,7 +13,11 @@ The ioctls are answered by :class:`~gonio.drivers.fake.usbdevfs.Usbdevfs` (URBs,
 faults: see there). When a fake is unplugged (its ``unplug()`` or ``disconnect_after_bytes``)
 its sysfs device and node are removed with a ``remove`` uevent; when it comes back
 (``reconnect_after``) it is added at a new address with an ``add`` uevent, so libusb's
-hotplug list finds it again. umockdev sends uevents through libudev reading the test bed, so
+hotplug list finds it again. As in the kernel, a file of the removed node that a program
+still holds, or opens in that moment, stays answered (``ENODEV``): the node's ioctl
+listener is kept until its address is handed out again or the bus closes (closing it at
+the unplug reset a connection umockdev had not yet accepted, and the program died).
+umockdev sends uevents through libudev reading the test bed, so
 only a bus in a process under the preload library sends them (:func:`ensure_preloaded`, as
 ``gonio devices serve --libusb`` does); elsewhere a running program sees the unplug as
 ``ENODEV`` and a program started later finds the replugged device.
@@ -200,6 +204,7 @@ class UsbfsBus:
             set_attribute=self._set_attribute,
         )
         self._nodes: dict[int, Node] = {}  # index in fakes -> current node
+        self._gone: dict[str, Node] = {}  # devnode -> removed node whose listener is kept
         self._devnum = 1  # the last address handed out (the kernel's round robin)
         self._stop = threading.Event()
         self._testbed = self._umockdev.Testbed.new()
@@ -288,6 +293,8 @@ class UsbfsBus:
             self.usbdevfs.closed = True
             for k in list(self._nodes):
                 self._unplug_node(k)
+            for devnode in list(self._gone):
+                self._detach(devnode)
             self._testbed = None
 
     def __enter__(self) -> UsbfsBus:
@@ -306,6 +313,7 @@ class UsbfsBus:
             dev, dev.generation, devnum, syspath, f"/dev/bus/usb/{self.bus:03d}/{devnum:03d}"
         )
         node.socket = os.path.join(self._root, "ioctl", node.devnode.lstrip("/"))
+        self._detach(node.devnode)  # a removed node's listener at this address, if any
         self._testbed.add_from_string(_sysfs_record(dev, self.bus, devnum, port))
         node.handler = _make_handler(self._umockdev, self.usbdevfs, node)
         self._testbed.attach_ioctl(node.devnode, node.handler)
@@ -341,10 +349,16 @@ class UsbfsBus:
         node.gone = True
         self.usbdevfs.fail_node(node)
         if self._testbed is not None:
-            self._uevent(node.syspath, "remove")
-            self._testbed.detach_ioctl(node.devnode)
-            self._testbed.remove_device(node.syspath)
+            self._testbed.remove_device(node.syspath)  # it sends the "remove" uevent
+            if self.hotplug:
+                self.stats["uevent remove"] += 1
+            self._gone[node.devnode] = node  # its open files stay answered (ENODEV)
         self.stats["unplugged"] += 1
+
+    def _detach(self, devnode: str) -> None:
+        """Stop listening at a removed node's address (its open files are answered on)."""
+        if self._gone.pop(devnode, None) is not None:
+            self._testbed.detach_ioctl(devnode)
 
     def _watch(self) -> None:
         """Follow the fakes' plug state: remove unplugged devices, add replugged ones."""

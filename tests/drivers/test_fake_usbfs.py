@@ -414,6 +414,76 @@ def test_a_program_killed_before_its_answer_leaves_no_claim_behind(rig, tmp_path
     assert bus.stats["files forgotten"] >= 1
 
 
+def test_a_file_opened_as_its_device_goes_away_is_answered_enodev(rig, tmp_path):
+    """A program opens the node in the moment its device is unplugged. The kernel's open
+    file stays valid and its ioctls fail ENODEV; the node's listener must not be closed
+    under a connection umockdev has not yet accepted (the program died with "Error
+    communicating with ioctl socket, errno: 104", CI's failure). Holding the bus's lock
+    stops umockdev's worker at the first open's client-connected, so the second open waits
+    in the listener's backlog while the device goes (as the bus's watch removes it)."""
+    bus, fakes, _, _ = rig
+    spec = fakes["usb2000plus"]
+    code = f"""
+        import ctypes, errno, json, os, sys
+        libc = ctypes.CDLL(None, use_errno=True)  # the preloaded ioctl() comes first
+        libc.ioctl.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_void_p]
+        CAPS = (2 << 30) | (4 << 16) | (ord("U") << 8) | 26
+        files = [os.open({bus.devnode(spec)!r}, os.O_RDWR) for _ in range(2)]
+        print("opened", flush=True)
+        sys.stdin.readline()
+        out = []
+        for fd in files:
+            caps = ctypes.c_uint(0)
+            r = libc.ioctl(fd, CAPS, ctypes.byref(caps))
+            out.append(errno.errorcode[ctypes.get_errno()] if r < 0 else r)
+        print(json.dumps(out), flush=True)
+        """
+    prog = subprocess.Popen(
+        [sys.executable, "-P", "-c", textwrap.dedent(code)],
+        env=bus.env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, cwd=tmp_path,
+    )  # fmt: skip
+    try:
+        with bus._lock:
+            assert prog.stdout.readline().strip() == "opened"
+            spec.unplug()
+            bus._unplug_node(bus.fakes.index(spec))  # what the watch does, now
+        out, err = prog.communicate("\n", timeout=30)
+    finally:
+        if prog.poll() is None:
+            prog.kill()
+            prog.wait()
+    assert prog.returncode == 0, err[-3000:]
+    assert json.loads(out.strip().splitlines()[-1]) == ["ENODEV", "ENODEV"]
+    assert bus.devnode(spec) is None
+
+
+def test_an_address_handed_out_again_gets_a_new_listener(rig, tmp_path):
+    """A removed node's listener is kept (above) until its address comes round again: 130
+    replugs (the kernel's round robin over 2..127) reuse every address, and the device
+    answers at the last one."""
+    bus, fakes, _, _ = rig
+    spec = fakes["usb2000plus"]
+    k = bus.fakes.index(spec)
+    seen = set()
+    with bus._lock:
+        for _ in range(130):
+            bus._unplug_node(k)
+            bus._plug(k)
+            seen.add(bus.address(spec))
+    assert len(seen) == 125  # 2..127 less the camera's address
+    assert len(bus._gone) == 124  # every other address a removed node's, none twice
+    got = _child(
+        bus,
+        tmp_path,
+        """
+        d = usb.core.find(idVendor=0x2457, backend=be)
+        print(json.dumps([d.address, usb.util.get_string(d, d.iSerialNumber)]))
+        """,
+    )
+    assert got == [bus.address(spec), "USB2+F07001"]
+
+
 WAIT_FOR_EVENT = """
 d = usb.core.find(idVendor=0x1209, backend=be)
 d.set_configuration()
