@@ -71,6 +71,8 @@ _CACHE: dict[str, Any] = {}
 
 #: runs a list of independent jobs and returns their results in order
 Parallel = Callable[[Sequence[Callable[[], Any]]], list]
+#: begins one job and returns the function that waits for its result
+Start = Callable[[Callable[[], Any]], Callable[[], Any]]
 
 
 class FrontSurfaceMirror(Lambert):
@@ -421,6 +423,8 @@ def laboratory_calibration(
     method: str = "eq3",
     seed: int = 0,
     parallel: Parallel | None = None,
+    start: Start | None = None,
+    warm: Callable[[], None] | None = None,
 ):
     """The calibration of a simulated instrument, made once and kept.
 
@@ -431,7 +435,11 @@ def laboratory_calibration(
     physical instrument, and written to ``folder`` if given (a folder copied from another
     instrument's campaign is calibrated anew). ``parallel``: how the independent jobs run
     (default one after the other; a campaign gives
-    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`).
+    :meth:`~gonio.campaign.executor.CampaignExecutor.parallel`). ``warm`` readies the
+    instrument for the captures (traces its geometry, loads its kernels) once the job that
+    needs none of it, the lens's, has been begun by ``start`` (default: run when its result
+    is needed; a campaign gives :meth:`~gonio.campaign.executor.CampaignExecutor.start`);
+    it is called only if captures are taken.
     """
     from gonio.calibration.laboratory import CALIBRATION_FILE, read_calibration
 
@@ -444,7 +452,8 @@ def laboratory_calibration(
     if cal is None:
         design = {"sample_radius": float(inst.sample_radius),
                   "spot_radius": float(inst.source.spot_radius)}  # fmt: skip
-        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial)
+        cal = _pipelined(inst, nominal_mirror, seed, method, design, parallel or _serial,
+                         start or _later, warm)  # fmt: skip
         if len(_CACHE) > 64:
             for k in [k for k in _CACHE if not k.startswith(("board/", "lens/"))]:
                 _CACHE.pop(k)
@@ -458,24 +467,33 @@ def laboratory_calibration(
     return cal
 
 
+def _later(job: Callable[[], Any]) -> Callable[[], Any]:
+    return job
+
+
 def _pipelined(
     inst: Any, nominal_mirror: Mapping[str, Any], seed: int, method: str,
-    design: Mapping[str, float], parallel: Parallel,
+    design: Mapping[str, float], parallel: Parallel, start: Start,
+    warm: Callable[[], None] | None,
 ):  # fmt: skip
     """``calibrate(take_captures(inst))`` as three independent jobs, each the instrument's
     captures of one kind followed by the laboratory's analysis of those captures alone:
     board views -> lens, mirror spots -> centroids, f-stop ladder -> f-stop table. Only
     the analyses' results (and the views, kept for the next instrument with this lens) come
-    back from a job; the ladder's 54 frames stay where they were taken. The captures are
-    those of :func:`take_captures` (the same draws), so the calibration is
-    :func:`calibrate`'s bit for bit.
+    back from a job; the ladder's 54 frames stay where they were taken. The lens's job needs
+    the lens alone, so it is begun (``start``) before the instrument is warmed up
+    (``warm``) for the other two. The captures are those of :func:`take_captures` (the
+    same draws), so the calibration is :func:`calibrate`'s bit for bit.
     """
     draws = _Draws(inst, seed)
-    (views, key, lens_rec), (points, pitch), fstops = parallel([
-        partial(_lens_part, inst, seed),
+    lens = start(partial(_lens_part, inst, seed))
+    if warm is not None:
+        warm()
+    (points, pitch), fstops = parallel([
         partial(_spots_job, inst, draws.spot_seeds),
         partial(_ladder_job, inst, draws.settings),
     ])  # fmt: skip
+    views, key, lens_rec = lens()
     mirror = _mirror_fit(points, lens_rec, nominal_mirror, method)
     if draws.views is None:
         draws.keep_views(views)

@@ -20,7 +20,9 @@ the machine lives here, not in the stages:
   next captures; a task's writes are finished before its result is reported.
 * **Parallel jobs** (:meth:`CampaignExecutor.parallel`): a stage's independent pieces that
   are not incidence angles (the calibration captures, the ChArUco detection) on processes
-  forked for them.
+  forked for them; one that needs nothing the campaign's process is still making can be
+  begun earlier (:meth:`CampaignExecutor.start`: the lens's calibration, while this process
+  warms the instrument up).
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
@@ -45,6 +47,8 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
+
+from gonio.malloc import keep_freed
 
 __all__ = [
     "CampaignExecutor",
@@ -170,6 +174,7 @@ def _init_worker(state: dict[str, Any], parent: int | None = None) -> None:
     if parent is not None:  # a pool process: default SIGTERM, dies with the campaign
         child_signals()
         die_with_parent(parent)
+        keep_freed()  # (its life is the campaign's)
     _STATE.clear()
     _STATE.update(state)
 
@@ -181,7 +186,22 @@ _JOBS: list[Callable[[], Any]] = []
 def _init_jobs(jobs: list[Callable[[], Any]], parent: int) -> None:
     child_signals()
     die_with_parent(parent)
+    # a BLAS a job loads itself (OpenCV's, for a job forked before the campaign loaded it)
+    # starts on one thread too; the ones loaded already are limited before the fork
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    keep_freed()  # (its life is the campaign's)
     _JOBS[:] = jobs
+
+
+def _init_background(jobs: list[Callable[[], Any]], parent: int) -> None:
+    _init_jobs(jobs, parent)
+    with contextlib.suppress(OSError):
+        os.nice(BACKGROUND_NICE)
+
+
+#: The niceness of a job begun by :meth:`CampaignExecutor.start`: it takes the cores the
+#: campaign's other processes leave idle, not a share of theirs.
+BACKGROUND_NICE = 10
 
 
 def _job(k: int) -> Any:
@@ -385,11 +405,40 @@ class CampaignExecutor:
             ok = True
             return out
         finally:
-            if not ok:  # a job failed or the campaign was interrupted: stop the others
-                for proc in list(getattr(pool, "_processes", {}).values()):
-                    with contextlib.suppress(OSError):
-                        proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=not ok)
+            _shutdown(pool, stop=not ok)  # a job failed or the campaign was interrupted
+
+    def start(self, job: Callable[[], Any]) -> Callable[[], Any]:
+        """Begin ``job()`` now on a process forked for it (which inherits everything, as
+        :meth:`parallel`'s jobs do); returns the function that waits for its result (and
+        raises its error). With one worker the job runs here when its result is asked for.
+
+        For a job that needs this process only as it is now, begun before work it need not
+        wait for: the lens's calibration (board views and ``cv2.fisheye``, 0.35-0.4 s) on
+        the core left idle while this process warms the instrument up for the calibration's
+        other captures (the plot process has loaded matplotlib by then). A job still
+        running when the executor ends (an error, an interrupt) is stopped.
+        """
+        if self.workers == 1:
+            return job
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        self._limit_blas()
+        pool = ProcessPoolExecutor(
+            1, mp_context=mp.get_context("fork"), initializer=_init_background,
+            initargs=([job], os.getpid()),
+        )  # fmt: skip
+        self._stack.callback(_shutdown, pool, stop=True)  # (a no-op once it has ended)
+        with forking():
+            future = pool.submit(_job, 0)
+
+        def result() -> Any:
+            try:
+                return future.result()
+            finally:
+                _shutdown(pool, stop=not future.done())  # (interrupted while waiting)
+
+        return result
 
     def _start_pool(self, state: dict[str, Any], prepare: Callable[[], None] | None) -> Any:
         import multiprocessing as mp
@@ -407,11 +456,8 @@ class CampaignExecutor:
 
     def _close_pool(self, cancel: bool = False) -> None:
         if self._pool is not None:
-            if cancel and self._failed:  # interrupted or failed: do not wait for the tasks
-                for proc in list(getattr(self._pool, "_processes", {}).values()):
-                    with contextlib.suppress(OSError):
-                        proc.terminate()
-            self._pool.shutdown(wait=True, cancel_futures=cancel)
+            # interrupted or failed: do not wait for the tasks
+            _shutdown(self._pool, stop=cancel and self._failed, cancel=cancel)
             self._pool = None
 
     # ------------------------------------------------------------------ I/O thread
@@ -452,6 +498,16 @@ class CampaignExecutor:
         self._close_pool()
         if self._plotter is not None:
             self._plotter.wait()
+
+
+def _shutdown(pool: Any, *, stop: bool, cancel: bool | None = None) -> None:
+    """Shut a process pool down; ``stop``: terminate its processes first (their tasks are
+    not waited for). ``cancel``: drop its queued tasks (default: ``stop``)."""
+    if stop:
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(OSError):
+                proc.terminate()
+    pool.shutdown(wait=True, cancel_futures=stop if cancel is None else cancel)
 
 
 def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> int:

@@ -142,11 +142,10 @@ def _stages(
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
-            _warm_instrument(setup)  # before they fork: they inherit the traced geometry
             t = time.perf_counter()
-            setup.lab = _laboratory(plan, setup.instrument, outp, ex.parallel)
-            if setup.lab is not None:
-                setup.t_calibration = time.perf_counter() - t
+            setup.lab = _laboratory(plan, setup.instrument, outp, ex, partial(_warm_up, ex, setup))
+            if setup.lab is not None:  # (the warm-up, timed on its own, not counted)
+                setup.t_calibration = time.perf_counter() - t - ex.timings.get("warm_up", 0.0)
         if setup.t_calibration is not None:  # before the capture's workers fork
             ex.timings["calibration"] = setup.t_calibration
         # 2. capture and reduce
@@ -236,11 +235,12 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) -> Any:
+def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None, warm: Any = None) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
-    jobs run by ``parallel``) and copied to ``OUT/calibration``; None for the ideal
+    jobs run by the executor ``ex``, the instrument warmed up by ``warm`` before the
+    captures that need it) and copied to ``OUT/calibration``; None for the ideal
     instrument, whose design is its truth."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
@@ -257,17 +257,23 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, parallel: Any = None) 
     lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=parallel,
+        parallel=ex and ex.parallel, start=ex and ex.start, warm=warm,
     )  # fmt: skip
     _warm(lab, sim)
     return lab
+
+
+def _warm_up(ex: CampaignExecutor, setup: _Setup) -> None:
+    with ex.stage("warm_up"):
+        _warm_instrument(setup)
 
 
 def _warm_instrument(setup: _Setup) -> None:
     """A realistic simulated instrument's geometry traced and kernels loaded before its
     calibration captures (:meth:`_SimulatedLBL.prepare`), so that the calibration's jobs,
     forked from this process, inherit them instead of each tracing and loading them anew
-    (and the capture's workers after them)."""
+    (and the capture's workers after them); the lens's calibration, which needs none of
+    it, runs meanwhile."""
     inst = setup.instrument
     if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
         inst.prepare(setup.truth, reduce=False)  # (reduced with the calibration, later)

@@ -64,8 +64,15 @@ def test_the_pipelined_laboratory_calibration_is_calibrate_of_take_captures():
         two_sided = calibrate.calibrate(calibrate.take_captures(inst, seed=5), nominal,
                                         design=design)  # fmt: skip
         calibrate._CACHE.clear()
-        with CampaignExecutor(2) as ex:
-            piped = calibrate.laboratory_calibration(inst, nominal, seed=5, parallel=ex.parallel)
+        warmed = []
+        with CampaignExecutor(2) as ex:  # the lens's job begun before the warm-up
+            piped = calibrate.laboratory_calibration(
+                inst, nominal, seed=5, parallel=ex.parallel, start=ex.start,
+                warm=lambda: warmed.append(len(calibrate._CACHE)),
+            )  # fmt: skip
+        again = calibrate.laboratory_calibration(inst, nominal, seed=5, warm=warmed.append)
+    assert warmed == [0]  # once, before the captures; not for the kept calibration
+    assert again.lens == piped.lens
     assert piped.lens == two_sided.lens
     assert piped.mirror.to_dict() == two_sided.mirror.to_dict()
     assert piped.fstops.to_dict() == two_sided.fstops.to_dict()

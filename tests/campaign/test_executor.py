@@ -108,6 +108,43 @@ def test_parallel_raises_a_jobs_error_and_leaves_no_process():
     assert mp.active_children() == []
 
 
+def test_start_runs_a_job_meanwhile_on_a_low_priority_process_or_later_here():
+    calls = []
+    big = list(range(1000))  # inherited, not pickled
+
+    def job():
+        calls.append(1)
+        return sum(big), os.getpid(), os.nice(0), os.environ.get("OPENBLAS_NUM_THREADS")
+
+    with executor.CampaignExecutor(1) as ex:
+        later = ex.start(job)
+        assert calls == []  # one worker: the job runs when its result is asked for
+        assert later()[:2] == (499500, os.getpid())
+    with executor.CampaignExecutor(2) as ex:
+        there = ex.start(job)
+        total, pid, nice, blas = there()
+    assert total == 499500 and pid != os.getpid()
+    assert nice == os.nice(0) + executor.BACKGROUND_NICE and blas == "1"
+
+
+def test_start_raises_the_jobs_error_and_a_job_left_running_is_stopped():
+    import multiprocessing as mp
+
+    def bad():
+        raise ValueError("job failed")
+
+    with executor.CampaignExecutor(2) as ex:
+        with pytest.raises(ValueError, match="job failed"):
+            ex.start(bad)()
+    assert mp.active_children() == []
+    t = time.perf_counter()
+    with pytest.raises(RuntimeError, match="the campaign failed"):
+        with executor.CampaignExecutor(2) as ex:
+            ex.start(lambda: time.sleep(30))
+            raise RuntimeError("the campaign failed")
+    assert mp.active_children() == [] and time.perf_counter() - t < 10
+
+
 def _slow_start_then_default_sigterm():
     time.sleep(0.3)  # SIGTERM arrives here, before the start-up below
     executor.child_signals()
