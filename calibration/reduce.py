@@ -209,6 +209,28 @@ def load_lens(lens: Any, width: int | None = None, height: int | None = None):
     return lens
 
 
+@lru_cache(maxsize=4)
+def _lens_grid(lens_json: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Camera rays ``(H, W, 3)`` and field angles ``(H, W)`` of a lens's pixel grid, from one
+    inverse of its radial map (cached per lens: :func:`pixel_geometry` and
+    :func:`grid_field_angle` need the same inverse of the same grid)."""
+    from gonio.simulator.lenses import FisheyeLens
+
+    lens = FisheyeLens.from_dict(json.loads(lens_json))
+    cam, theta = lens.unproject_with_angle(lens.pixel_grid())
+    for a in (cam, theta):
+        a.setflags(write=False)
+    return cam, theta
+
+
+def grid_field_angle(lens: Any) -> NDArray[np.float64]:
+    """Field angle θ of every pixel of ``lens`` (a lens, its dict or file), ``(H, W)``,
+    read-only and cached per lens (the rays of :func:`pixel_geometry` come from the same
+    inverse of the radial map)."""
+    lens = load_lens(lens)
+    return _lens_grid(json.dumps(lens.to_dict(), sort_keys=True))[1]
+
+
 @lru_cache(maxsize=16)
 def _geometry_cached(lens_json: str, mirror_json: str, method: str):
     from gonio.simulator.lenses import FisheyeLens
@@ -217,7 +239,7 @@ def _geometry_cached(lens_json: str, mirror_json: str, method: str):
     md = json.loads(mirror_json)
     geom = MirrorGeometry.from_metadata(md)
     uv = lens.pixel_grid()
-    cam = lens.unproject(uv)
+    cam = _lens_grid(lens_json)[0]
     inf = lens.in_field(uv)
     wo, ok = reflection_directions(cam, geom, method)
     valid = inf & ok & (wo[..., 2] > 0.0)

@@ -250,6 +250,13 @@ class FisheyeLens:
 
     def unproject(self, uv: ArrayLike) -> NDArray[np.float64]:
         """Unit camera-frame directions ``(..., 3)`` of pixel coordinates ``(..., 2)``."""
+        return self.unproject_with_angle(uv)[0]
+
+    def unproject_with_angle(
+        self, uv: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`unproject` and :meth:`field_angle` of the same pixels, from one inverse of
+        the radial map (the costly part of either): ``(directions (..., 3), θ (...))``."""
         p = np.asarray(uv, dtype=np.float64)
         if p.shape[-1:] != (2,):
             raise ValueError(f"uv must have shape (..., 2), got {p.shape}")
@@ -261,7 +268,7 @@ class FisheyeLens:
         c = np.where(safe, xd / np.where(safe, r, 1.0), 1.0)
         s = np.where(safe, yd / np.where(safe, r, 1.0), 0.0)
         st = np.sin(theta)
-        return np.stack([st * c, st * s, np.cos(theta)], axis=-1)
+        return np.stack([st * c, st * s, np.cos(theta)], axis=-1), theta
 
     def field_angle(self, uv: ArrayLike) -> NDArray[np.float64]:
         """Angle θ from the optical axis of pixel coordinates ``(..., 2)``."""

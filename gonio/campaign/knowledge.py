@@ -316,22 +316,13 @@ def _certified_image(cert: Any, std: Any, wo_dome: np.ndarray, gvalid: np.ndarra
     return out
 
 
-_FIELD_ANGLES: dict[str, np.ndarray] = {}
-
-
 def field_angle(lens: Any) -> np.ndarray:
-    """Field angle of every pixel (flat), cached per lens (the Kannala-Brandt inverse of a
-    640 x 480 grid takes a second)."""
-    import json
+    """Field angle of every pixel (flat, read-only), cached per lens with the lens's pixel
+    rays (:func:`gonio.calibration.reduce.grid_field_angle`: the Kannala-Brandt inverse of
+    a 640 x 480 grid, made once for both)."""
+    from gonio.calibration.reduce import grid_field_angle
 
-    key = json.dumps(lens.to_dict(), sort_keys=True)
-    got = _FIELD_ANGLES.get(key)
-    if got is None:
-        if len(_FIELD_ANGLES) > 8:
-            _FIELD_ANGLES.clear()
-        got = _FIELD_ANGLES[key] = lens.field_angle(lens.pixel_grid().reshape(-1, 2)).ravel()
-        got.setflags(write=False)
-    return got
+    return grid_field_angle(lens).ravel()
 
 
 def campaign_budget(

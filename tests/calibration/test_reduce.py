@@ -129,3 +129,22 @@ def test_binary_lens_file_names_the_file(tmp_path):
     p.write_bytes(bytes(range(256)))
     with pytest.raises(ValueError, match=r"lens calibration '.*lens\.bin': not a JSON lens file"):
         load_lens(str(p))
+
+
+def test_pixel_geometry_and_grid_field_angle_share_one_inverse_of_the_lens():
+    from gonio.calibration.angles import MirrorGeometry
+    from gonio.calibration.reduce import _lens_grid, grid_field_angle, pixel_geometry
+    from gonio.simulator.lenses import FisheyeLens
+
+    lens = FisheyeLens("kannala_brandt", 150.0, 150.5, 320.1, 239.2, 640, 480,
+                       k=(0.004, -0.004, 0.002, -0.0005))  # fmt: skip
+    geom = MirrorGeometry.from_metadata({"type": "hemisphere", "radius": 0.15,
+                                         "half_separation": 0.01})  # fmt: skip
+    _lens_grid.cache_clear()
+    theta = grid_field_angle(lens)
+    assert np.array_equal(theta, lens.field_angle(lens.pixel_grid()))
+    assert not theta.flags.writeable
+    wo, valid = pixel_geometry(lens, geom)
+    info = _lens_grid.cache_info()
+    assert (info.misses, info.hits) == (1, 1)  # the rays came from the field angles' inverse
+    assert wo.shape == (480, 640, 3) and valid.any()

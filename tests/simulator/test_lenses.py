@@ -138,3 +138,15 @@ def test_kannala_brandt_inverse_compiled_equals_numpy(k):
     assert np.array_equal(got, lens._g_inv_numpy(r, hi_t), equal_nan=True)
     ok = r < lens.r_max
     assert np.abs(lens._g(got[ok]) - r[ok]).max() < 1e-12
+
+
+@pytest.mark.parametrize("model", ["kannala_brandt", "equisolid"])
+def test_unproject_with_angle_is_unproject_and_field_angle_bit_for_bit(model):
+    kw = {"k": (0.05, -0.01, 0.003, -0.0005)} if model == "kannala_brandt" else {}
+    lens = FisheyeLens(model, 150.0, 151.0, 319.5, 239.5, 640, 480, skew=1e-4, **kw)
+    uv = lens.pixel_grid()
+    dirs, theta = lens.unproject_with_angle(uv)
+    assert np.array_equal(dirs, lens.unproject(uv))
+    assert np.array_equal(theta, lens.field_angle(uv))
+    # the flat grid (as the glare correction reads it): the same inverse, the same bits
+    assert np.array_equal(theta.ravel(), lens.field_angle(uv.reshape(-1, 2)))
