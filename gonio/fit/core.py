@@ -1426,13 +1426,46 @@ def _duplicates_note(data: _Data, mask: NDArray) -> str:
     if data.band is not None:
         cols.append(np.asarray(data.band)[mask][:, None].astype(np.float64))
     key = np.concatenate(cols, axis=1)
-    n_dup = key.shape[0] - np.unique(key, axis=0).shape[0]
+    n_dup = repeated_rows(key)
     if n_dup == 0:
         return ""
     return (
         f"; note: {n_dup} of {key.shape[0]} rows repeat other rows exactly: the standard "
         "errors assume independent samples and are too small"
     )
+
+
+def repeated_rows(key: NDArray) -> int:
+    """How many rows of ``key`` (n, k) repeat another row: ``n`` minus the rows of
+    ``np.unique(key, axis=0)``, the same count.
+
+    ``np.unique`` with ``axis`` sorts the rows as records (0.5 s for the 170 000 rows of a
+    default campaign, half of its fit); here each row's bits are hashed to one 64-bit
+    integer and sorted (0.02 s), and only rows whose hashes collide are compared by
+    ``np.unique``. Rows with different bits after ``-0.0`` is made ``0.0`` differ as
+    numbers too (a NaN equals nothing, as in ``np.unique``), so a row of its own hash
+    repeats no other row.
+    """
+    key = np.ascontiguousarray(key, dtype=np.float64) + 0.0  # (-0.0 + 0.0 is 0.0)
+    n = key.shape[0]
+    if n < 2 or key.shape[1] == 0:
+        return n - np.unique(key, axis=0).shape[0] if n else 0
+    bits = key.view(np.uint64)
+    h = np.zeros(n, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for c in range(bits.shape[1]):  # a multiply-xorshift mix, column by column
+            h ^= bits[:, c]
+            h *= np.uint64(0x9E3779B97F4A7C15)
+            h ^= h >> np.uint64(31)
+    order = np.argsort(h, kind="stable")
+    same = h[order[1:]] == h[order[:-1]]
+    if not same.any():
+        return 0
+    shared = np.zeros(n, dtype=bool)  # in a run of equal hashes
+    shared[1:] |= same
+    shared[:-1] |= same
+    sub = key[np.sort(order[shared])]
+    return int(sub.shape[0] - np.unique(sub, axis=0).shape[0])
 
 
 def _rms(r: NDArray) -> float:

@@ -8,6 +8,8 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gonio import brdf, fit
 from gonio.brdf.base import BRDF, Param
@@ -564,6 +566,23 @@ def test_number_of_starts_is_bounded():
     s = _samples(brdf.create("ward", **BRASS), n_ti=4, n_o=60)
     with pytest.raises(ValueError, match=r"n_starts must be in \[0, 10000\], got 100000000"):
         fit.fit(s, "ward", n_starts=100_000_000)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    rows=st.lists(
+        st.lists(st.sampled_from([0.0, -0.0, 1.0, 2.5, math.nan, math.inf]), min_size=3,
+                 max_size=3),
+        max_size=40,
+    )
+)  # fmt: skip
+def test_repeated_rows_counts_what_numpy_unique_counts(rows):
+    # the hashed count against the record sort it replaces: -0.0 is 0.0, NaN as numpy says
+    from gonio.fit.core import repeated_rows
+
+    key = np.array(rows, dtype=np.float64).reshape(len(rows), 3)
+    want = len(rows) - np.unique(key, axis=0).shape[0] if rows else 0
+    assert repeated_rows(key) == want
 
 
 def test_repeated_rows_are_noted():
