@@ -1448,23 +1448,24 @@ def repeated_rows(key: NDArray) -> int:
     """
     key = np.ascontiguousarray(key, dtype=np.float64) + 0.0  # (-0.0 + 0.0 is 0.0)
     n = key.shape[0]
-    if n < 2 or key.shape[1] == 0:
-        return n - np.unique(key, axis=0).shape[0] if n else 0
+    if n < 2:
+        return 0
+    if key.shape[1] == 0:  # empty rows are all the same row
+        return n - 1
     bits = key.view(np.uint64)
     h = np.zeros(n, dtype=np.uint64)
-    with np.errstate(over="ignore"):
-        for c in range(bits.shape[1]):  # a multiply-xorshift mix, column by column
-            h ^= bits[:, c]
-            h *= np.uint64(0x9E3779B97F4A7C15)
-            h ^= h >> np.uint64(31)
-    order = np.argsort(h, kind="stable")
+    for c in range(bits.shape[1]):  # a multiply-xorshift mix, column by column (wrapping)
+        h ^= bits[:, c]
+        h *= np.uint64(0x9E3779B97F4A7C15)
+        h ^= h >> np.uint64(31)
+    order = np.argsort(h)
     same = h[order[1:]] == h[order[:-1]]
     if not same.any():
         return 0
     shared = np.zeros(n, dtype=bool)  # in a run of equal hashes
     shared[1:] |= same
     shared[:-1] |= same
-    sub = key[np.sort(order[shared])]
+    sub = key[order[shared]]
     return int(sub.shape[0] - np.unique(sub, axis=0).shape[0])
 
 
