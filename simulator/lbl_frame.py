@@ -22,41 +22,43 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from gonio.simulator.lbl_readout import Readout
 from gonio.simulator.lbl_scene import Scene
 from gonio.simulator.lbl_trace import Geometry
 from gonio.simulator.lenses import FisheyeLens
+from gonio.simulator.sensor import Sensor
 from numpy.typing import NDArray
 
 __all__ = ["Frames"]
 
 
+@dataclass(eq=False)
 class Frames:
     """Frames of rendered scenes: composed at an f-number, the frame effects applied
     (``fx``: the instrument's non-zero effect magnitudes, ``frame_fx``: any of the frame
     effects on), read out by ``readout``; ``geometry(rays)``: the traced geometry (only its
     image circle is used, to bound the point spread's work)."""
 
-    def __init__(
-        self,
-        readout: Readout,
-        geometry: Callable[[int], Geometry],
-        dome_radius: float,
-        fx: Mapping[str, float],
-        frame_fx: bool,
-        seed: int,
-    ) -> None:
-        self.readout = readout
-        self.lens: FisheyeLens = readout.lens
-        self.sensor = readout.sensor
-        self.geometry = geometry
-        self.dome_radius = dome_radius
-        self.fx = fx
-        self.frame_fx = frame_fx
-        self.seed = seed
-        self._box: tuple[int, int, int, int] | None = None
+    readout: Readout
+    geometry: Callable[[int], Geometry]
+    dome_radius: float
+    fx: Mapping[str, float]
+    frame_fx: bool
+    seed: int
+    _box: tuple[int, int, int, int] | None = field(default=None, init=False, repr=False)
+
+    @property
+    def lens(self) -> FisheyeLens:
+        """The lens the frames are taken through (the read-out's)."""
+        return self.readout.lens
+
+    @property
+    def sensor(self) -> Sensor:
+        """The sensor that reads the frames out."""
+        return self.readout.sensor
 
     def shoot(
         self, sc: Scene, f_number: float, noise: bool, rng, binning, skip_noise_draws=True,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -60,25 +60,23 @@ def _near_rim(g: Any, r_min: float) -> NDArray[np.int64]:
     return cand[np.hypot(g.qx[cand], g.qy[cand]) > r_min]
 
 
+@dataclass(eq=False)
 class SamplePose:
     """The sample as the instrument holds it: its incidence frames, its true traced
-    geometry and its pose (``fx``: the instrument's non-zero effect magnitudes)."""
+    geometry and its pose."""
 
-    def __init__(
-        self,
-        optics: Optics,
-        source: Source,
-        readout: Readout,
-        fx: Mapping[str, float],
-        seed: int,
-    ) -> None:
-        self.optics = optics
-        self.source = source
-        self.readout = readout
-        self.fx = fx
-        self.seed = seed
-        self._true_geometry: dict[float, Geometry] = {}
-        self._dome_trace: Any = None
+    optics: Optics
+    #: the source arm (its azimuth)
+    source: Source
+    #: each candidate pixel's response, carried along when a pose drops candidates
+    readout: Readout
+    #: the instrument's non-zero effect magnitudes
+    fx: Mapping[str, float]
+    #: the instrument seed (the tilt's azimuth)
+    seed: int
+    #: the dome's traced points and reflected rays (once), the true geometries (per height)
+    _dome_trace: Any = field(default=None, init=False, repr=False)
+    _true_geometry: dict[float, Geometry] = field(default_factory=dict, init=False, repr=False)
 
     def beam(self, theta_i: float, phi_i: float) -> tuple[NDArray, NDArray, float]:
         """(wi_local, wi_dome, psi): psi = dome azimuth of the sample's x axis."""

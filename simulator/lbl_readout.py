@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from gonio.simulator.lbl_trace import Geometry
@@ -27,6 +28,7 @@ from numpy.typing import NDArray
 __all__ = ["Readout"]
 
 
+@dataclass(eq=False)
 class Readout:
     """The pixels of the camera behind the lens (``vignetting``: the lens's relative
     illumination fall-off, 0 = none; ``geometry(rays)``: the traced geometry).
@@ -35,21 +37,14 @@ class Readout:
     builds a new ``Readout``.
     """
 
-    def __init__(
-        self,
-        lens: FisheyeLens,
-        sensor: Sensor,
-        vignetting: float,
-        geometry: Callable[[int], Geometry],
-    ) -> None:
-        self.lens = lens
-        self.sensor = sensor
-        self.vignetting = vignetting
-        self.geometry = geometry
-        self._resp: tuple[NDArray, NDArray] | None = None
-        self._resp_rays: dict[int, NDArray] = {}
-        self._dark_map: NDArray | None = None
-        self._resp_field: tuple[NDArray, float] | None = None
+    lens: FisheyeLens
+    sensor: Sensor
+    vignetting: float
+    geometry: Callable[[int], Geometry]
+    _resp: tuple[NDArray, NDArray] | None = field(default=None, init=False, repr=False)
+    _resp_rays: dict[int, NDArray] = field(default_factory=dict, init=False, repr=False)
+    _dark_map: NDArray | None = field(default=None, init=False, repr=False)
+    _resp_field: tuple[NDArray, float] | None = field(default=None, init=False, repr=False)
 
     # ------------------------------------------------------------------ response
     def response(self) -> tuple[NDArray, NDArray]:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from gonio.simulator.lbl_pose import SamplePose
@@ -106,33 +106,22 @@ def _lobe_width(model: BRDF) -> float | None:
     return None
 
 
+@dataclass(eq=False)
 class SceneMaker:
     """Renders :class:`Scene` s (``fx``: the instrument's non-zero effect magnitudes,
     ``scene_fx``: any of the scene effects on, ``seed``: the instrument seed)."""
 
-    def __init__(
-        self,
-        optics: Optics,
-        source: Source,
-        pose: SamplePose,
-        stray: StrayLight,
-        readout: Readout,
-        fx: Mapping[str, float],
-        scene_fx: bool,
-        rho_standard: float,
-        seed: int,
-    ) -> None:
-        self.optics = optics
-        self.source = source
-        self.pose = pose
-        self.stray = stray
-        self.readout = readout
-        self.fx = fx
-        self.scene_fx = scene_fx
-        self.rho_standard = rho_standard
-        self.seed = seed
-        self._std_model: BRDF | None = None
-        self._ones_c: NDArray | None = None
+    optics: Optics
+    source: Source
+    pose: SamplePose
+    stray: StrayLight
+    readout: Readout
+    fx: Mapping[str, float]
+    scene_fx: bool
+    rho_standard: float
+    seed: int
+    _std_model: BRDF | None = field(default=None, init=False, repr=False)
+    _ones_c: NDArray | None = field(default=None, init=False, repr=False)
 
     def render(
         self, kind, model, theta_i, phi_i, exposure, band, source_samples, kernel=True,

@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 from gonio.simulator.lbl_readout import Readout
 from gonio.simulator.lbl_trace import Optics
+from gonio.simulator.optics import Mirror
 from gonio.simulator.source import Background, Source
 from numpy.typing import NDArray
 
@@ -36,29 +38,28 @@ __all__ = ["SCENE_FX", "StrayLight"]
 SCENE_FX = ("veiling_glare", "reillumination", "ambient_on_sample")
 
 
+@dataclass(eq=False)
 class StrayLight:
-    """The background and the scene effects' light (``fx``: the instrument's non-zero
-    effect magnitudes). Its caches hold for one instrument."""
+    """The background and the scene effects' light. Its caches hold for one instrument."""
 
-    def __init__(
-        self,
-        optics: Optics,
-        background: Background,
-        source: Source,
-        readout: Readout,
-        fx: Mapping[str, float],
-        rho_standard: float,
-    ) -> None:
-        self.optics = optics
-        self.mirror = optics.mirror
-        self.background = background
-        self.source = source
-        self.readout = readout
-        self.fx = fx
-        self.rho_standard = rho_standard
-        self._bg_cache: dict[tuple, NDArray] = {}
-        self._albedo_cache: dict[tuple, tuple] = {}
-        self._albedo_images: dict[tuple, NDArray] = {}
+    optics: Optics
+    background: Background
+    #: the beam (its spot's size, for re-illumination)
+    source: Source
+    #: each pixel's response
+    readout: Readout
+    #: the instrument's non-zero effect magnitudes
+    fx: Mapping[str, float]
+    #: the diffuse standard's reflectance (its albedo)
+    rho_standard: float
+    _bg_cache: dict[tuple, NDArray] = field(default_factory=dict, init=False, repr=False)
+    _albedo_cache: dict[tuple, tuple] = field(default_factory=dict, init=False, repr=False)
+    _albedo_images: dict[tuple, NDArray] = field(default_factory=dict, init=False, repr=False)
+
+    @property
+    def mirror(self) -> Mirror:
+        """The dome."""
+        return self.optics.mirror
 
     def background_photons(self, wi_dome: NDArray) -> NDArray:
         """Background electrons per second at f/1, per pixel (cached per beam direction)."""
