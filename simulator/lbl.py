@@ -61,7 +61,6 @@ standard and a background image), eq. 3 (angle recovery), "reduced ... to a reso
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar
@@ -71,20 +70,24 @@ from gonio.simulator.lbl_calibration import calibration_capture
 from gonio.simulator.lbl_config import (
     STANDARD,
     WARD_BINNING,
+    Request,
     _check_angle,
     _frame_key,
     _json_value,
     _resolve_sample,
     _rng_and_seed,
+    bench_incidence,
     capture_metadata,
     check_args,
     check_binning,
+    check_sample,
     effect_magnitudes,
+    filter_bands,
     make_camera_lens,
     make_mirror,
 )
 from gonio.simulator.lbl_exposure import F_STOPS, plan_stops
-from gonio.simulator.lbl_frame import Frames
+from gonio.simulator.lbl_frame import FRAME_FX, Frames
 from gonio.simulator.lbl_pose import GEOMETRY_FX, SamplePose, _base_radii, _near_rim
 from gonio.simulator.lbl_readout import Readout
 from gonio.simulator.lbl_scene import Scene, SceneMaker, _lobe_width, _ward_kernel_params
@@ -238,16 +241,9 @@ class LBLInstrument:
         self.sensor = sensor if sensor is not None else Sensor()
         self.source = source if source is not None else Source()
         self.background = background if background is not None else Background()
-        self.sample_radius = _check_positive(sample_radius, "sample_radius")
-        if self.sample_radius >= 2.0 * self.mirror.half_separation:
-            raise ValueError(
-                f"sample_radius = {sample_radius!r} must be smaller than 2D = "
-                f"{2.0 * self.mirror.half_separation!r} (the sample would overlap the lens)"
-            )
-        rs = _check_positive(rho_standard, "rho_standard")
-        if rs > 1.0:
-            raise ValueError(f"rho_standard must be in (0, 1], got {rho_standard!r}")
-        self.rho_standard = rs
+        self.sample_radius, self.rho_standard = check_sample(
+            sample_radius, rho_standard, self.mirror
+        )
         #: the instrument seed and every effect's magnitude (0 = off)
         self.instrument_seed, self.effects, self._fx = effect_magnitudes(effects, instrument_seed)
         self._frame_fx = any(k in self._fx for k in self._FRAME_FX)
@@ -265,10 +261,7 @@ class LBLInstrument:
         "background": Background,
     }
     _GEOMETRY_FX = GEOMETRY_FX
-    _FRAME_FX = (
-        "fstop_series", "fstop_error", "iris_repeatability", "lamp_warmup", "lamp_drift",
-        "lamp_flicker", "pixel_fill", "diffraction_wavelength", "focus_error",
-    )  # fmt: skip
+    _FRAME_FX = FRAME_FX
     _SCENE_FX = SCENE_FX
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -293,28 +286,19 @@ class LBLInstrument:
             parts = self.__dict__["_assembled"] = _Parts.assemble(self)
         return parts
 
-    # names callers reach on the instrument, done by its parts
+    # the scene of a capture: source, sample and dome (the light at the lens, at f/1)
+    _scene = _Forward("scene", "render")
+    # names tests, benchmarks and diagnostics reach on the instrument, done by its parts
     _geometry = _Forward("optics", "geometry")
-    _all_field_arrays = _Forward("optics", "all_field_arrays")
-    _dome_crossing = _Forward("optics", "dome_crossing")
     _response = _Forward("readout", "response")
-    _resp_rays = _Forward("readout", "rays_response")
-    _candidate_response = _Forward("readout", "candidate_response")
     _dark = _Forward("readout", "dark")
-    _finish = _Forward("readout", "finish")
     _finish_effects = _Forward("readout", "finish_effects")
-    _bin = _Forward("readout", "bin")
     _frames = _Forward("pose", "beam")
     _scene_geometry = _Forward("pose", "true_geometry")
     _posed = _Forward("pose", "posed")
-    _scene = _Forward("scene", "render")
     _standard_model = _Forward("scene", "standard_model")
     _signal_terms = _Forward("scene", "signal_terms")
-    _delta_terms = _Forward("scene", "delta_terms")
     _compose = _Forward("frames", "compose")
-    _light_box = _Forward("frames", "light_box")
-    _check_args = staticmethod(check_args)
-    _check_binning = staticmethod(check_binning)
 
     # ------------------------------------------------------------------ description
     def to_dict(self) -> dict[str, Any]:
@@ -384,6 +368,19 @@ class LBLInstrument:
         t = self.clock_s if clock_s is None else clock_s
         frames = self._parts.frames
         return frames.shoot(sc, f_number, noise, rng, binning, skip_noise_draws, (key, t))
+
+    def _take(self, ask: Request, sc: Scene, f_number, rng, seed, index=0, skip_noise_draws=True,
+              clock_s=None) -> tuple[NDArray[np.uint16], dict[str, Any]]:  # fmt: skip
+        """One frame of the scene ``sc`` at ``f_number`` through the lens onto the sensor,
+        and its side-car (``ask``: what the capture was asked; ``index``: the frame's place
+        in its series, for the per-frame effects' draws)."""
+        key = _frame_key(ask.kind, ask.theta_i, ask.phi_i, sc.exposure, f_number, seed, index)
+        frame = (key, clock_s)
+        img, lens = self._shoot(sc, f_number, ask.noise, rng, ask.binning, skip_noise_draws, frame)
+        return img, self.metadata(
+            ask.kind, ask.model, ask.material, ask.theta_i, ask.phi_i, sc.exposure, f_number,
+            seed, ask.noise, ask.binning, ask.band, ask.source_samples, lens, img, ask.rays,
+        )  # fmt: skip
 
     def _render(
         self, kind, model, theta_i, phi_i, exposure, f_number, band, source_samples,
@@ -489,17 +486,13 @@ class LBLInstrument:
         theta_i, phi_i, exposure, f_number = check_args(theta_i, phi_i, exposure, f_number)
         binning = check_binning(binning)
         rays = _check_rays(rays_per_pixel)
+        ask = Request(kind, model, material, theta_i, phi_i, noise, binning, band, source_samples,
+                      rays)  # fmt: skip
         gen, seed = _rng_and_seed(rng) if noise else (None, None)
         # source, sample, dome: the light that reaches the lens, at f/1
         sc = self._scene(kind, model, theta_i, phi_i, exposure, band, source_samples, rays=rays)
-        # lens, sensor: the frame at this f-number, read out
-        key = _frame_key(kind, theta_i, phi_i, exposure, f_number, seed, 0)
-        img, lens = self._shoot(sc, f_number, noise, gen, binning, skip_noise_draws, (key, clock_s))
-        meta = self.metadata(
-            kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise, binning,
-            band, source_samples, lens, img, rays,
-        )  # fmt: skip
-        return img, meta
+        # lens, sensor: the frame at this f-number, read out, and its side-car
+        return self._take(ask, sc, f_number, gen, seed, 0, skip_noise_draws, clock_s)
 
     def capture_series(
         self,
@@ -532,6 +525,8 @@ class LBLInstrument:
         bad = sorted({k for s in settings for k in s} - {"exposure", "f_number", "rng"})
         if bad:
             raise ValueError(f"settings have unknown keys {bad}; expected exposure, f_number, rng")
+        ask = Request(kind, model, material, theta_i, phi_i, noise, binning, band, source_samples,
+                      rays)  # fmt: skip
         sc0 = None
         out = []
         for s in settings:
@@ -543,13 +538,7 @@ class LBLInstrument:
                 sc0 = self._scene(kind, model, theta_i, phi_i, exposure, band, source_samples,
                                   rays=rays)  # fmt: skip
             sc = sc0 if exposure == sc0.exposure else replace(sc0, exposure=exposure)
-            key = _frame_key(kind, theta_i, phi_i, exposure, f_number, seed, 0)
-            img, lens = self._shoot(sc, f_number, noise, gen, binning, True, (key, clock_s))
-            meta = self.metadata(
-                kind, model, material, theta_i, phi_i, exposure, f_number, seed, noise,
-                binning, band, source_samples, lens, img, rays,
-            )  # fmt: skip
-            out.append((img, meta))
+            out.append(self._take(ask, sc, f_number, gen, seed, 0, True, clock_s))
         return out
 
     def metadata(
@@ -633,19 +622,7 @@ class LBLInstrument:
         kind, model, material = _resolve_sample(sample)
         theta_i, phi_i, exposure, f_number = check_args(theta_i, phi_i, exposure, f_number)
         wl = [float(w) for w in wavelengths_nm]
-        if not wl:
-            raise ValueError("wavelengths_nm must name at least one filter")
-        bands: list[int | None] = [None] * len(wl)
-        if model is not None and model.n_bands:
-            mw = np.asarray(model.wavelengths_nm)
-            for i, w in enumerate(wl):
-                j = int(np.argmin(np.abs(mw - w)))
-                if abs(mw[j] - w) > 5.0:
-                    raise ValueError(
-                        f"filter {w} nm has no band of {model.name} within 5 nm "
-                        f"(bands {mw.min():g}-{mw.max():g} nm)"
-                    )
-                bands[i] = j
+        bands = filter_bands(model, wl)
         gen, seed = _rng_and_seed(rng) if noise else (None, None)
         gens = gen.spawn(len(wl)) if noise else [None] * len(wl)
         out = []
@@ -748,6 +725,7 @@ class LBLInstrument:
                 f"bracket got unexpected arguments {sorted(unknown)}; plan options are "
                 "min_signal_dn, headroom, skip_stops"
             )
+        ask = Request(kind, model, material, theta_i, phi_i, noise, binning, None, None, rays)
         sc = self._scene(kind, model, theta_i, phi_i, exposure, None, None, rays=rays)
         plan = self._plan(
             sc, f_stops, plan_kw.get("min_signal_dn", 16.0), plan_kw.get("headroom", 0.9),
@@ -759,12 +737,7 @@ class LBLInstrument:
         out = []
         for i, n in enumerate(plan["f_numbers"]):
             n = check_args(theta_i, phi_i, exposure, n)[3]
-            key = _frame_key(kind, theta_i, phi_i, exposure, n, seed, i)
-            img, lens = self._shoot(sc, n, noise, gens[i], binning, frame=(key, clock_s))
-            meta = self.metadata(
-                kind, model, material, theta_i, phi_i, exposure, n, seed, noise, binning,
-                None, None, lens, img, rays,
-            )  # fmt: skip
+            img, meta = self._take(ask, sc, n, gens[i], seed, i, clock_s=clock_s)
             meta["bracket"] = {"index": i, **plan}
             out.append((img, meta))
         return out
@@ -789,17 +762,8 @@ class LBLInstrument:
         gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
 
         def render(positions: dict[str, float], exposure_s: float, f_number: float):
-            try:
-                th = math.radians(float(positions[source_axis]))
-                rot = math.radians(float(positions.get(sample_axis, 0.0)))
-            except KeyError:
-                raise ValueError(
-                    f"positions {positions!r} lack the source axis {source_axis!r}"
-                ) from None
-            phi = self.source.arm_azimuth - rot
-            if th < 0.0:  # the arm swung through the zenith: same as +|θ| on the far side
-                th, phi = -th, phi + math.pi
-            phi = math.pi - (math.pi - phi) % (2 * math.pi)  # in (-π, π]
+            az = self.source.arm_azimuth
+            th, phi = bench_incidence(positions, source_axis, sample_axis, az)
             return self.capture(
                 sample, th, phi, exposure=exposure_s, f_number=f_number, rng=gen, noise=noise
             )

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from gonio.simulator.optics import MIRRORS, Mirror
 
 from gonio.brdf.base import BRDF, as_brdf
 
-__all__ = ["STANDARD", "WARD_BINNING"]
+__all__ = ["STANDARD", "WARD_BINNING", "Request"]
 
 #: the ``sample`` value that images the diffuse reflectance standard
 STANDARD = "standard"
@@ -244,3 +245,73 @@ def effect_magnitudes(
         check_magnitudes(effects)
         fx = {k: float(v) for k, v in effects.items() if float(v) != 0.0}
     return int(seed), {name: fx.get(name, 0.0) for name in EFFECTS}, fx
+
+
+@dataclass(frozen=True)
+class Request:
+    """What a capture was asked, checked: the sample (its kind, model and material name),
+    the incidence, and how its frames are read out and described."""
+
+    kind: str
+    model: BRDF | None
+    material: str | None
+    theta_i: float
+    phi_i: float
+    noise: bool
+    binning: tuple[int, int] | None
+    band: int | None
+    source_samples: int | None
+    rays: int
+
+
+def bench_incidence(
+    positions: Mapping[str, float], source_axis: str, sample_axis: str, arm_azimuth: float
+) -> tuple[float, float]:
+    """``(θ_i, φ_i)`` of a simulated bench's stage ``positions`` (degrees):
+    ``positions[source_axis]`` is θ_i (source arm) and ``positions[sample_axis]`` the
+    sample-holder rotation ψ, so that ``φ_i = arm_azimuth - ψ``; a negative arm angle means
+    the arm swung through the zenith (``θ_i = |θ|``, ``φ_i + π``); φ_i in (-π, π]."""
+    try:
+        th = math.radians(float(positions[source_axis]))
+        rot = math.radians(float(positions.get(sample_axis, 0.0)))
+    except KeyError:
+        raise ValueError(f"positions {positions!r} lack the source axis {source_axis!r}") from None
+    phi = arm_azimuth - rot
+    if th < 0.0:  # the arm swung through the zenith: same as +|θ| on the far side
+        th, phi = -th, phi + math.pi
+    phi = math.pi - (math.pi - phi) % (2 * math.pi)  # in (-π, π]
+    return th, phi
+
+
+def filter_bands(model: BRDF | None, wl: list[float]) -> list[int | None]:
+    """The band of a spectral ``model`` nearest each colour filter's wavelength ``wl``
+    (within 5 nm), or None for each filter when the model is grey (or no sample)."""
+    if not wl:
+        raise ValueError("wavelengths_nm must name at least one filter")
+    bands: list[int | None] = [None] * len(wl)
+    if model is not None and model.n_bands:
+        mw = np.asarray(model.wavelengths_nm)
+        for i, w in enumerate(wl):
+            j = int(np.argmin(np.abs(mw - w)))
+            if abs(mw[j] - w) > 5.0:
+                raise ValueError(
+                    f"filter {w} nm has no band of {model.name} within 5 nm "
+                    f"(bands {mw.min():g}-{mw.max():g} nm)"
+                )
+            bands[i] = j
+    return bands
+
+
+def check_sample(sample_radius, rho_standard, mirror: Mirror) -> tuple[float, float]:
+    """The sample's radius (smaller than the dome's ``2D``, so it does not overlap the
+    lens) and the diffuse standard's reflectance (in (0, 1]), checked."""
+    sr = _check_positive(sample_radius, "sample_radius")
+    if sr >= 2.0 * mirror.half_separation:
+        raise ValueError(
+            f"sample_radius = {sample_radius!r} must be smaller than 2D = "
+            f"{2.0 * mirror.half_separation!r} (the sample would overlap the lens)"
+        )
+    rs = _check_positive(rho_standard, "rho_standard")
+    if rs > 1.0:
+        raise ValueError(f"rho_standard must be in (0, 1], got {rho_standard!r}")
+    return sr, rs

@@ -32,7 +32,13 @@ from gonio.simulator.lenses import FisheyeLens
 from gonio.simulator.sensor import Sensor
 from numpy.typing import NDArray
 
-__all__ = ["Frames"]
+__all__ = ["FRAME_FX", "Frames"]
+
+#: the effects on a frame: the lens's aperture, the lamp's output, the point spread
+FRAME_FX = (
+    "fstop_series", "fstop_error", "iris_repeatability", "lamp_warmup", "lamp_drift",
+    "lamp_flicker", "pixel_fill", "diffraction_wavelength", "focus_error",
+)  # fmt: skip
 
 
 @dataclass(eq=False)
