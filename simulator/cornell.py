@@ -589,49 +589,64 @@ class CornellInstrument(TrueInstrument):
         fc = m.evaluate_unchecked(wi, wo)
         out = np.array(fc, dtype=np.float64, copy=True)
         if convolve is not False:
-            rs, ps, ws = self._rule_s
-            rd, pd, wd = self._rule_d
             if convolve is None and self.config.skip_tol > 0:
-                k4 = np.arange(4) * (np.pi / 2)
-                rim_i = _cone_points(wi, np.full(4, self._alpha_s), k4)
-                rim_o = _cone_points(wo, np.full(4, self._alpha_d), k4 + np.pi / 4)
-                f1 = m.evaluate_unchecked(rim_i, wo[:, None, :])
-                f2 = m.evaluate_unchecked(wi[:, None, :], rim_o)
-                # second differences across each cone: the cone mean of a quadratic differs
-                # from the centre value by half the mean rim deviation (mean r² = α²/2)
-                c0 = fc[:, None]
-                d1 = 0.5 * (f1[:, :2] + f1[:, 2:]) - c0
-                d2 = 0.5 * (f2[:, :2] + f2[:, 2:]) - c0
-                err = 0.5 * (np.abs(d1).max(axis=1) + np.abs(d2).max(axis=1))
-                need = (err > self.config.skip_tol * np.abs(fc)).reshape(len(a), -1).any(axis=1)
+                need = self._cone_needed(m, wi, wo, fc)
             else:
                 need = np.ones(len(a), bool)
             idx = np.flatnonzero(need)
             self.stats["conv_full"] += int(idx.size)
             self.stats["conv_skipped"] += int(len(a) - idx.size)
-            for chunk in np.array_split(idx, max(1, idx.size // 256)):
-                if chunk.size == 0:
-                    continue
-                pi = _cone_points(wi[chunk], rs, ps)  # (M, Ks, 3)
-                po = _cone_points(wo[chunk], rd, pd)  # (M, Kd, 3)
-                f = m.evaluate_unchecked(pi[:, :, None, :], po[:, None, :, :])
-                wgt = ws[:, None] * wd[None, :] * np.clip(pi[:, :, 2], 0, None)[:, :, None]
-                if f.ndim == 4:
-                    s = np.einsum("mijb,mij->mb", f, wgt)
-                else:
-                    s = np.einsum("mij,mij->m", f, wgt)
-                s = s / np.where(ci[chunk] > 0, ci[chunk], 1.0).reshape((-1,) + (1,) * (s.ndim - 1))
-                out[chunk] = s
+            self._cone_average(m, wi, wo, ci, idx, out)
         if m.has_delta:
-            d, rho = m.delta(wi)
-            beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
-            area = _lens_area(beta, self._alpha_s, self._alpha_d)
-            c = self.config
-            # A/(Ω_s Ω_d), the planar lens area rescaled to solid angle (exact when inside)
-            w = area / (math.pi * self._alpha_d**2 * c.source_solid_angle)
-            w = w / np.where(ci > 0, ci, 1.0)
-            out = out + (rho * w[:, None] if rho.ndim == 2 else rho * w)
+            out = out + self._delta_part(m, wi, wo, ci)
         return out
+
+    def _cone_needed(self, m: BRDF, wi: NDArray, wo: NDArray, fc: NDArray) -> NDArray:
+        """Which geometries the cone average changes by more than ``config.skip_tol`` of
+        the centre value ``fc`` (the adaptive skip of :meth:`expected_brdf`)."""
+        k4 = np.arange(4) * (np.pi / 2)
+        rim_i = _cone_points(wi, np.full(4, self._alpha_s), k4)
+        rim_o = _cone_points(wo, np.full(4, self._alpha_d), k4 + np.pi / 4)
+        f1 = m.evaluate_unchecked(rim_i, wo[:, None, :])
+        f2 = m.evaluate_unchecked(wi[:, None, :], rim_o)
+        # second differences across each cone: the cone mean of a quadratic differs
+        # from the centre value by half the mean rim deviation (mean r² = α²/2)
+        c0 = fc[:, None]
+        d1 = 0.5 * (f1[:, :2] + f1[:, 2:]) - c0
+        d2 = 0.5 * (f2[:, :2] + f2[:, 2:]) - c0
+        err = 0.5 * (np.abs(d1).max(axis=1) + np.abs(d2).max(axis=1))
+        return (err > self.config.skip_tol * np.abs(fc)).reshape(len(wi), -1).any(axis=1)
+
+    def _cone_average(self, m, wi, wo, ci, idx: NDArray, out: NDArray) -> None:
+        """``out[idx]``: the BRDF averaged over the source and detector cones (quadrature
+        rules ``_rule_s``, ``_rule_d``) and divided by the effective cosine ``ci``."""
+        rs, ps, ws = self._rule_s
+        rd, pd, wd = self._rule_d
+        for chunk in np.array_split(idx, max(1, idx.size // 256)):
+            if chunk.size == 0:
+                continue
+            pi = _cone_points(wi[chunk], rs, ps)  # (M, Ks, 3)
+            po = _cone_points(wo[chunk], rd, pd)  # (M, Kd, 3)
+            f = m.evaluate_unchecked(pi[:, :, None, :], po[:, None, :, :])
+            wgt = ws[:, None] * wd[None, :] * np.clip(pi[:, :, 2], 0, None)[:, :, None]
+            if f.ndim == 4:
+                s = np.einsum("mijb,mij->mb", f, wgt)
+            else:
+                s = np.einsum("mij,mij->m", f, wgt)
+            s = s / np.where(ci[chunk] > 0, ci[chunk], 1.0).reshape((-1,) + (1,) * (s.ndim - 1))
+            out[chunk] = s
+
+    def _delta_part(self, m: BRDF, wi: NDArray, wo: NDArray, ci: NDArray) -> NDArray:
+        """The mirror component's share of the measured BRDF: its reflectance times the
+        overlap of the source cone's mirror image with the detector cone."""
+        d, rho = m.delta(wi)
+        beta = np.arccos(np.clip(np.sum(d * wo, -1), -1, 1))
+        area = _lens_area(beta, self._alpha_s, self._alpha_d)
+        c = self.config
+        # A/(Ω_s Ω_d), the planar lens area rescaled to solid angle (exact when inside)
+        w = area / (math.pi * self._alpha_d**2 * c.source_solid_angle)
+        w = w / np.where(ci > 0, ci, 1.0)
+        return rho * w[:, None] if rho.ndim == 2 else rho * w
 
     def _conv_at(self, angles: NDArray) -> tuple[NDArray, float]:
         """Cone-averaged BRDF and effective cos θi at one pose (cached by the pose)."""
@@ -944,13 +959,42 @@ def simulate_campaign(
     inst.prime(p.angles if inst.fx is None else inst.true_angles_of(p.angles))
     wl_bands = BANDS_NM
     nb = len(wl_bands)
+    wi, wo = forward(p.angles, lab.kinematics)
+    ce = effective_cos(wi, lab)
+    vals, sigs, t_int, n_sat, refs = _measure_plan(
+        inst, p, lab, ref, ce, reference, timing or Timing(), reference_every,
+        drift_correction, stray_correction, references,
+    )  # fmt: skip
+    if not noise:
+        sigs[:] = np.nan  # no noise: standard errors unknown (not zero), as gonio.fit expects
+    meta = _campaign_metadata(inst, p, sample, reference, noise, timing, t_int, n_sat, refs,
+                              reference_every)  # fmt: skip
+    rep = np.repeat
+    return BRDFSamples.from_directions(
+        rep(wi, nb, axis=0),
+        rep(wo, nb, axis=0),
+        vals.ravel(),
+        sigs.ravel(),
+        wavelength_nm=np.tile(wl_bands, len(p)),
+        metadata=meta,
+    )
+
+
+def _measure_plan(
+    inst, p, lab, ref, ce, reference, tm, reference_every, drift_correction,
+    stray_correction, references,
+) -> tuple[NDArray, NDArray, NDArray, int, list[tuple[float, Reference]]]:  # fmt: skip
+    """Every geometry of ``p`` measured in order and reduced (``ce``: the effective cosines
+    of the laboratory's view ``lab``): ``(values, standard errors, integration times, saturated
+    count, references)``. With ``reference_every`` the standard is measured again on the
+    instrument's clock, and with ``drift_correction`` each geometry reduced against the
+    reference interpolated to its time (see :func:`simulate_campaign`)."""
+    wl_bands = BANDS_NM
+    nb = len(wl_bands)
     vals = np.empty((len(p), nb))
     sigs = np.empty((len(p), nb))
     t_int = np.empty(len(p))
     n_sat = 0
-    wi, wo = forward(p.angles, lab.kinematics)
-    ce = effective_cos(wi, lab)
-    tm = timing or Timing()
     refs = [(0.0, ref)]
     pending: list[tuple[int, float, dict]] = []
     prev = np.zeros(3)
@@ -977,19 +1021,7 @@ def simulate_campaign(
         v, s, sat = reduce_measurement(raws, rj, float(ce[j]), lab, wl_bands, stray_correction)
         vals[j], sigs[j] = v, s
         n_sat += int(sat)
-    if not noise:
-        sigs[:] = np.nan  # no noise: standard errors unknown (not zero), as gonio.fit expects
-    meta = _campaign_metadata(inst, p, sample, reference, noise, timing, t_int, n_sat, refs,
-                              reference_every)  # fmt: skip
-    rep = np.repeat
-    return BRDFSamples.from_directions(
-        rep(wi, nb, axis=0),
-        rep(wo, nb, axis=0),
-        vals.ravel(),
-        sigs.ravel(),
-        wavelength_nm=np.tile(wl_bands, len(p)),
-        metadata=meta,
-    )
+    return vals, sigs, t_int, n_sat, refs
 
 
 def _campaign_metadata(
