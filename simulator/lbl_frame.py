@@ -23,8 +23,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from gonio.simulator.lbl_exposure import plan_stops
 from gonio.simulator.lbl_readout import Readout
 from gonio.simulator.lbl_scene import Scene
 from gonio.simulator.lbl_trace import Geometry
@@ -109,6 +111,14 @@ class Frames:
             drawn = sen.add_noise(e, gen) - e
             e = e + 0.0 * drawn
         return self.readout.finish(e, False, None, binning)
+
+    def plan(self, sc: Scene, f_stops, min_signal_dn, headroom, skip_stops=True) -> dict[str, Any]:
+        """The f-stops a bracket of ``sc`` needs (:func:`~gonio.simulator.lbl_exposure.
+        plan_stops` with this sensor, these frames' composition and the dark map)."""
+        return plan_stops(
+            sc, f_stops, min_signal_dn, headroom, skip_stops, self.sensor, self.compose,
+            self.readout.dark,
+        )  # fmt: skip
 
     def electrons(self, sc: Scene, f_number: float, key: str = "", clock_s: float = 0.0) -> NDArray:
         """Noise-free electrons of one frame: the scene at the lens's true aperture (the
