@@ -1,4 +1,5 @@
-"""numba kernels of the LBL capture hot path (imported lazily by :mod:`gonio.simulator.lbl`).
+"""numba kernels of the LBL capture hot path (imported lazily by the LBL parts
+:mod:`gonio.simulator.lbl_scene` and :mod:`gonio.simulator.lbl_frame`).
 
 The per-capture work is split so that the only transcendental call per pixel, Ward's
 ``exp``, runs in numpy's SIMD ``exp`` (faster than a scalar libm call from numba, and the
@@ -45,9 +46,10 @@ in one loop is about twice as slow (1.24 against 0.66 ms for 640 x 480 pixels). 
 are sequential in one thread, so the image does not depend on the number of threads.
 
 All kernels release the GIL (``nogil``), so a capture overlaps with other threads (the
-campaign's image writer). Each has a plain-numpy twin in :mod:`gonio.simulator.lbl`
-(``kernel=False``), and the tests check that both give the same image (the noise draw's
-reference is numpy's exact Poisson, ``Sensor.add_noise(exact=True)``).
+campaign's image writer). Each has a plain-numpy twin in the LBL parts
+(:mod:`gonio.simulator.lbl_scene`, :mod:`gonio.simulator.lbl_frame`; ``kernel=False``),
+and the tests check that both give the same image (the noise draw's reference is numpy's
+exact Poisson, ``Sensor.add_noise(exact=True)``).
 
 References
 ----------

@@ -77,6 +77,12 @@ class SamplePose:
     #: the dome's traced points and reflected rays (once), the true geometries (per height)
     _dome_trace: Any = field(default=None, init=False, repr=False)
     _true_geometry: dict[float, Geometry] = field(default_factory=dict, init=False, repr=False)
+    #: the tilted directions of a geometry per holder rotation: ``(id(g), psi) -> (g, base)``;
+    #: this instrument's own (its tilt, its tilt's azimuth and its pixels' response), not the
+    #: geometry's, which instruments with the same optics share
+    _tilted: dict[tuple[int, float], tuple[Geometry, list]] = field(
+        default_factory=dict, init=False, repr=False
+    )
 
     def beam(self, theta_i: float, phi_i: float) -> tuple[NDArray, NDArray, float]:
         """(wi_local, wi_dome, psi): psi = dome azimuth of the sample's x axis."""
@@ -150,8 +156,8 @@ class SamplePose:
         tilt = fx.get("sample_tilt", 0.0)
         h = fx.get("sample_height", 0.0)
         c_arr = np.ascontiguousarray
-        tilted = g.__dict__.setdefault("_tilted", {})
-        base = tilted.get(psi)  # the tilted directions, once per holder rotation
+        hit = self._tilted.get((id(g), psi))  # the tilted directions, once per holder rotation
+        base = None if hit is None else hit[1]
         if base is None:
             rc = self.readout.candidate_response(g, 1)
             if tilt:
@@ -169,10 +175,11 @@ class SamplePose:
             else:
                 t, w, keep = np.eye(3), [g.wx, g.wy, g.wz], None
             sub = (lambda a: a) if keep is None else (lambda a: c_arr(a[keep]))
-            base = tilted[psi] = [
+            base = [
                 t, [c_arr(a) for a in w], sub(g.idx), sub(g.qx), sub(g.qy), sub(rc),
                 1.0 / np.sqrt(w[2]),
             ]  # fmt: skip
+            self._tilted[(id(g), psi)] = (g, base)  # (g held: its id is not reused)
         t, (wx, wy, wz), idx, qx, qy, rc, isq = base[:7]
         if h:
             qx = qx - h * wi_dome[0] / wi_dome[2]
