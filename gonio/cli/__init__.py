@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _subcommand_modules():
         p = sub.add_parser(mod.COMMAND, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _parser=p)
     return parser
 
 
@@ -49,7 +49,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except ValueError as exc:
-        print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
+        from gonio.cli._common import cli_text
+
+        print(f"gonio {args.command}: error: {cli_text(str(exc), args)}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file, a folder, a port, a host: one line naming it
         print(f"gonio {args.command}: error: {os_error_text(exc)}", file=sys.stderr)

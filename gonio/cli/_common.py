@@ -130,3 +130,31 @@ def _fmt(c: Any) -> str:
     if isinstance(c, float | np.floating):
         return f"{c:.4g}"
     return str(c)
+
+
+#: library keywords whose option has another name (keyword -> the option's ``dest``)
+KEYWORD_DESTS = {"n_starts": "starts"}
+
+
+def option_map(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Python keyword -> the option of ``parser`` that sets it (``{"negative": "--negative",
+    "n_starts": "--starts"}``): each option's first long name, by its ``dest``, and the
+    keywords of :data:`KEYWORD_DESTS` whose ``dest`` the parser has."""
+    by_dest: dict[str, str] = {}
+    for action in parser._actions:
+        longs = [s for s in action.option_strings if s.startswith("--")]
+        if longs and action.dest not in by_dest:
+            by_dest[action.dest] = longs[0]
+    out = dict(by_dest)
+    out.update({k: by_dest[d] for k, d in KEYWORD_DESTS.items() if d in by_dest})
+    return out
+
+
+def cli_text(text: str, args: argparse.Namespace) -> str:
+    """A library message in the syntax of the command that prints it: its keyword hints
+    (:func:`gonio.hints.keyword`) written as the command's options (``n_starts=`` ->
+    ``--starts``); ``text`` unchanged without a subcommand's parser in ``args``."""
+    from gonio.hints import as_options
+
+    parser = getattr(args, "_parser", None)
+    return as_options(text, option_map(parser)) if parser is not None else text
