@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from gonio import __version__
+from gonio.cli._common import HelpFormatter
 
 
 def _subcommand_modules():
@@ -33,7 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gonio {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _subcommand_modules():
-        p = sub.add_parser(mod.COMMAND, help=mod.HELP, description=mod.HELP)
+        p = sub.add_parser(
+            mod.COMMAND,
+            help=mod.HELP,
+            description=getattr(mod, "DESCRIPTION", mod.HELP),
+            formatter_class=HelpFormatter,
+        )
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run, _parser=p)
     return parser

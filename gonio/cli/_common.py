@@ -12,6 +12,28 @@ from typing import Any
 import numpy as np
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default: ``(default: X)`` appended where the help text
+    does not already say its default and the default is a value (not ``None``, ``False`` or
+    an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if (
+            "default" in text
+            or d is argparse.SUPPRESS
+            or d is None
+            or d is False
+            or (action.const is not None and action.nargs == 0)
+            or (isinstance(d, list) and not d)
+            or not (action.option_strings or action.nargs in ("?", "*"))
+        ):
+            return text
+        shown = " ".join(map(str, d)) if isinstance(d, tuple | list) else "%(default)s"
+        return f"{text} (default: {shown})" if text else f"default: {shown}"
+
+
 def _default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -87,13 +87,13 @@ def _plan_options(group) -> None:
 
 def _instrument_options(group) -> None:
     group.add_argument(
-        "--instrument-preset",
         "--preset",
+        "--instrument-preset",  # the same option's older name, kept as an alias
         dest="preset",
         default=None,
         choices=["modern", "ward1992", "cornell2005", "ideal"],
         help="the instrument's build and its imperfections (default modern on lbl, "
-        "cornell2005 on cornell; ideal = none)",
+        "cornell2005 on cornell; ideal = none; --instrument-preset is the same option)",
     )
     group.add_argument(
         "--instrument-seed",

@@ -33,14 +33,28 @@ HELP = "fake ESP300 / USB2000+ / PTP camera on a simulated bench (gonio devices 
 
 def add_arguments(parser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION")
-    p = sub.add_parser("serve", help="start the fakes and print how to reach them")
+    p = sub.add_parser(
+        "serve",
+        help="start the fakes and print how to reach them",
+        description="Start the fake ESP300 motion controllers (on a pseudo-terminal and a "
+        "loopback TCP port), the fake USB2000+ spectrometer and PTP camera (on a fake USB bus) "
+        "on a simulated bench of the chosen instrument, print how to reach each device (one "
+        "line each, or JSON), and serve them until interrupted (Ctrl-C); with --libusb and a "
+        "program after '--', run that program on the emulated USB bus and return its exit code.",
+        formatter_class=parser.formatter_class,
+    )
     p.add_argument(
         "--instrument",
         choices=("lbl", "cornell"),
         default="lbl",
         help="bench layout and instrument simulator (default lbl)",
     )
-    p.add_argument("--material", default=None, help="material preset of the sample")
+    p.add_argument(
+        "--material",
+        default=None,
+        help="material preset of the sample (default the instrument's: rolled_brass on lbl, "
+        "garnet_red_paint on cornell)",
+    )
     p.add_argument(
         "--time-scale",
         type=float,
