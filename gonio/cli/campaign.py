@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 from gonio.cli._common import add_json_option, check_output_dir, int_in, output_dir, write_json
 
@@ -148,6 +149,13 @@ def _output_options(group) -> None:
     group.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
+        "--plot-dpi",
+        type=int_in(50, 1200, "dots per inch"),
+        default=None,
+        metavar="DPI",
+        help="resolution of the PNG plots (default 200; 300-600 for print)",
+    )
+    group.add_argument(
         "--workers",
         type=int,
         default=None,
@@ -273,6 +281,8 @@ def _run_cornell(args) -> int:
 
 
 def run(args) -> int:
+    if args.plot_dpi is not None:  # read by gonio.plots.figures.plot_dpi, in the plot process too
+        os.environ["GONIO_PLOT_DPI"] = str(args.plot_dpi)
     _refuse_other_instrument(args)
     if args.instrument == "cornell":
         return _run_cornell(args)
