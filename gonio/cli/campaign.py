@@ -147,6 +147,13 @@ def _output_options(group) -> None:
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     group.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    group.add_argument(
+        "--raw",
+        choices=("keep", "compressed", "none"),
+        default="keep",
+        help="LBL: the raw frames once the campaign is done: kept as written, compressed "
+        "(lossless LZW, read back bit for bit; ~3x smaller) or removed (no --resume then)",
+    )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
         "--plot-dpi",
@@ -227,6 +234,7 @@ _LBL_ONLY = {
     "--workers": ("workers", None),
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
+    "--raw": ("raw", "keep"),
 }
 _CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
 
@@ -319,9 +327,14 @@ def run(args) -> int:
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
+    from gonio.campaign.raw import disk_usage, keep_raw
+
+    keep_raw(res.out, args.raw)
+    disk = disk_usage(res.out)
     if not args.quiet:
         print(campaign.summary_table(res.summary))
-        print(f"results in {res.out}")
+        print(f"results in {res.out}: {disk['total'] / 1e6:.1f} MB on the disk, raw frames "
+              f"{disk['raw'] / 1e6:.1f} MB ({args.raw})")  # fmt: skip
     if args.json:
-        write_json(args.json, res.summary)
+        write_json(args.json, {**res.summary, "disk_bytes": disk, "raw": args.raw})
     return 0 if res.summary["converged"] else 1
