@@ -52,8 +52,8 @@ def add_arguments(parser) -> None:
     p.add_argument(
         "--material",
         default=None,
-        help="material preset of the sample (default the instrument's: rolled_brass on lbl, "
-        "garnet_red_paint on cornell)",
+        help="material preset of the sample (default: the diffuse standard on lbl, a "
+        "Lambertian sample on cornell)",
     )
     p.add_argument(
         "--time-scale",
@@ -188,6 +188,13 @@ def _check_serve_args(args) -> tuple[list[tuple[str, str, float]], list[str]]:
     return faults, command
 
 
+def _sample_label(args) -> str:
+    """What the bench's sample is: ``--material``, else what the instrument puts there."""
+    if args.material is not None:
+        return args.material
+    return "standard (no --material)" if args.instrument == "lbl" else "lambert (no --material)"
+
+
 def _make_bench(args):
     """The simulated bench of ``--instrument`` with the sample, seed, noise and time scale."""
     from gonio.campaign.drivers import cornell_fake_bench
@@ -267,7 +274,7 @@ def _usb_and_bench_records(args, bench, fakes: dict, name: str, usb_server: str)
         {
             "device": "bench",
             "instrument": args.instrument,
-            "material": args.material,
+            "material": _sample_label(args),
             "seed": int(args.seed),
             "noise": args.noise == "on",
             "time_scale": float(args.time_scale),
@@ -323,7 +330,7 @@ def _describe(rec: dict, args, name: str, usb_server: str) -> str:
         )
     if rec["device"] == "bench":
         return (
-            f"bench: instrument {args.instrument}, material {args.material}, seed "
+            f"bench: instrument {args.instrument}, material {_sample_label(args)}, seed "
             f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop"
         )
     if rec["device"] == "libusb":
