@@ -423,7 +423,8 @@ def _hemisphere(samples, path, max_panels, bins, title, dpi):
         marks_spec.append((cx - d * np.cos(pi), cy + d * np.sin(pi)))
         ax.text(cx, r0 - 0.6, f"θi {np.degrees(ti):.0f}°, φi {np.degrees(pi):.0f}°",
                 ha="center", va="bottom", fontsize=6.5)  # fmt: skip
-    ax.imshow(rgba, interpolation="nearest")
+    # as 8-bit RGBA: matplotlib checks and converts a float image pixel by pixel (0.38 s)
+    ax.imshow((rgba * 255.0 + 0.5).astype(np.uint8), interpolation="nearest")
     ax.add_collection(PatchCollection(rings, match_original=False, facecolor="none",
                                       edgecolor="0.55", lw=0.4, linestyle=(0, (2, 2))))  # fmt: skip
     if marks_src:
