@@ -532,7 +532,7 @@ def plot_residuals(
 
     Normalised ``(f − y)/σ`` when the table has σ (a standard normal for a good fit and
     honest errors; the histogram shows that normal for comparison), else relative
-    ``(f − y)/y``; the figure defines f, y and σ. Both panels share a robust range (the
+    ``(f − y)/y`` in per cent; the figure defines f, y and σ. Both panels share a robust range (the
     central 99.5 % of the residuals, widened to ±4 for normalised ones) so that a few
     outliers do not flatten the rest: points beyond it are drawn on its edge as triangles
     and the histogram's end bins, hatched, count them, with their number written. The
@@ -555,8 +555,8 @@ def _residuals(samples, model, path, max_points, title, dpi):
     else:
         y = samples.value
         ok = np.abs(y) > 0
-        r = np.where(ok, (f - y) / np.where(ok, y, 1.0), 0.0)
-        label = "(f − y)/y"
+        r = 100.0 * np.where(ok, (f - y) / np.where(ok, y, 1.0), 0.0)  # in per cent
+        label = "(f − y)/y (%)"
         define = "f: fitted model, y: measured BRDF (sr⁻¹)"
     r = np.where(np.isfinite(r), r, 0.0)
     n = len(r)
@@ -604,7 +604,7 @@ def _residuals(samples, model, path, max_points, title, dpi):
         bars[i].set_facecolor("C1")
         bars[i].set_edgecolor("white")
     handles = [bars[0]]
-    bars[0].set_label(f"end bins also hold |r| > {lim:.3g} ({n_out:,} samples)")
+    bars[0].set_label(f"end bins also hold |residual| > {lim:.3g} ({n_out:,} samples)")
     if samples.has_sigma:
         g = np.linspace(-lim, lim, 301)
         (line,) = ax2.plot(g, n * widths[0] * np.exp(-0.5 * g**2) / np.sqrt(2 * np.pi),
@@ -620,6 +620,6 @@ def _residuals(samples, model, path, max_points, title, dpi):
     fig.text(0.01, 0.005, define, fontsize=6.5, color="0.3", ha="left", va="bottom")
     if title:
         fig.suptitle(title)
-    fig.subplots_adjust(left=0.5 / DOUBLE, right=1 - 0.1 / DOUBLE, bottom=0.62 / 2.7,
+    fig.subplots_adjust(left=0.6 / DOUBLE, right=1 - 0.1 / DOUBLE, bottom=0.62 / 2.7,
                         top=1 - (0.5 if title else 0.3) / 2.7, wspace=0.55)  # fmt: skip
     return _save(fig, path)
