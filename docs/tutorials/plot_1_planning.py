@@ -23,6 +23,7 @@ compares two plans and the time each would take on the real instrument.
 # (default) or a hemisphere. The material is a preset from the papers' tables; its model and
 # parameters are the truth the campaign is judged against.
 import json
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -268,3 +269,9 @@ print(f"time B / time A = {eb['total_s'] / ea['total_s']:.2f}")
 # (:doc:`../commands/sweep`); a single campaign from the command line is ``gonio campaign``
 # (:doc:`../commands/campaign`), whose ``--preset``, ``--seed`` and ``--corrections``
 # options set the fields used here.
+
+# %%
+# The temporary folder (the campaign, its raw frames and the sweep: tens of megabytes) is
+# removed at the end, so that running the tutorial leaves nothing behind.
+shutil.rmtree(work, ignore_errors=True)
+print("removed", work.name, "->", work.exists())

@@ -28,6 +28,7 @@ shows what each of the laboratory's corrections is worth, and exports the fit to
 # (``image.png.json``) atomically.
 import contextlib
 import json
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -291,3 +292,10 @@ if have_radiance:
            ylabel="BRDF (1/sr)", title="material.rad rendered, θi = 50°")  # fmt: skip
     ax.legend(fontsize=8)
 fig.tight_layout()
+
+# %%
+# The temporary folder (the images, the campaign with its raw frames and the Radiance
+# files: tens of megabytes) is removed at the end, so that running the tutorial leaves
+# nothing behind.
+shutil.rmtree(folder, ignore_errors=True)
+print("removed", folder.name, "->", folder.exists())

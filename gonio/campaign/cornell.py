@@ -42,6 +42,7 @@ Results directory (``out``)::
                      converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma,
                      budget, estimated_real_instrument_h and _u_h, ...)
     plots/budget.png the uncertainty budget (gonio.plots.budget)
+    plots/incidence_plane.png, plots/residuals.png  the data against the fit (three bands)
 
 References
 ----------
@@ -746,6 +747,8 @@ def _stages(
     summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
     if setup.out is not None and summary.get("budget"):
         _draw_budget(setup, summary)
+    if setup.out is not None and fit:
+        _draw_fit(setup, summary, samples, res_fit.model)
     if setup.out is not None:
         _write_json(setup.out / "summary.json", summary)
     summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
@@ -759,12 +762,25 @@ def _draw_budget(setup: _Setup, summary: dict[str, Any]) -> None:
     from gonio.campaign.report import draw_budget
 
     view = figure_view(summary["budget"], summary["fit"], setup.corrections)
+    view["model"] = "li_torrance"  # the parameters' units
     if not view["params"]:
         return
     folder = setup.out / "plots"
     folder.mkdir(exist_ok=True)
     draw_budget("budget", view, folder, f"{setup.material} (cornell)")
     summary["files"]["plots"] = ["plots/budget.png"]
+
+
+def _draw_fit(setup: _Setup, summary: dict[str, Any], samples: BRDFSamples, model: Any) -> None:
+    """``plots/incidence_plane.png`` and ``plots/residuals.png``: the data against the fit
+    (:func:`gonio.campaign.report.draw`, the LBL campaign's figures; three bands)."""
+    from gonio.campaign.report import draw
+
+    (setup.out / "plots").mkdir(exist_ok=True)
+    for name in ("incidence_plane", "residuals"):
+        draw(name, samples, model, setup.out / "plots", f"{setup.material} (cornell)")
+    done = summary["files"].setdefault("plots", [])
+    done += [f"plots/{n}.png" for n in ("incidence_plane", "residuals")]
 
 
 @dataclasses.dataclass

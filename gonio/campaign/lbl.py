@@ -143,7 +143,9 @@ def _stages(
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
             t = time.perf_counter()
-            setup.lab = _laboratory(plan, setup.instrument, outp, ex, partial(_warm_up, ex, setup))
+            with Progress(1, "warm-up + calibration", quiet=quiet, stream=stream, min_time=0.0):
+                warm = partial(_warm_up, ex, setup)
+                setup.lab = _laboratory(plan, setup.instrument, outp, ex, warm)
             if setup.lab is not None:  # (the warm-up, timed on its own, not counted)
                 setup.t_calibration = time.perf_counter() - t - ex.timings.get("warm_up", 0.0)
         if setup.t_calibration is not None:  # before the capture's workers fork
@@ -461,7 +463,7 @@ def _capture_and_reduce(
             then=then,
         ):  # fmt: skip
             out[k] = res
-            bar.update(label=f"θi {angles[k]:g}°")
+            bar.update(label=f"capture + reduce θi {angles[k]:g}°")
     return out  # type: ignore[return-value]
 
 

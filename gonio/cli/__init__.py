@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 
 from gonio import __version__
+from gonio.cli._common import HelpFormatter
 
 
 def _subcommand_modules():
@@ -33,9 +34,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gonio {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _subcommand_modules():
-        p = sub.add_parser(mod.COMMAND, help=mod.HELP, description=mod.HELP)
+        p = sub.add_parser(
+            mod.COMMAND,
+            help=mod.HELP,
+            description=getattr(mod, "DESCRIPTION", mod.HELP),
+            formatter_class=HelpFormatter,
+        )
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _parser=p)
     return parser
 
 
@@ -49,7 +55,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except ValueError as exc:
-        print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
+        from gonio.cli._common import cli_text
+
+        print(f"gonio {args.command}: error: {cli_text(str(exc), args)}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file, a folder, a port, a host: one line naming it
         print(f"gonio {args.command}: error: {os_error_text(exc)}", file=sys.stderr)

@@ -12,6 +12,28 @@ from typing import Any
 import numpy as np
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Help that shows every option's default: ``(default: X)`` appended where the help text
+    does not already say its default and the default is a value (not ``None``, ``False`` or
+    an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if (
+            "default" in text
+            or d is argparse.SUPPRESS
+            or d is None
+            or d is False
+            or (action.const is not None and action.nargs == 0)
+            or (isinstance(d, list) and not d)
+            or not (action.option_strings or action.nargs in ("?", "*"))
+        ):
+            return text
+        shown = " ".join(map(str, d)) if isinstance(d, tuple | list) else "%(default)s"
+        return f"{text} (default: {shown})" if text else f"default: {shown}"
+
+
 def _default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()
@@ -130,3 +152,31 @@ def _fmt(c: Any) -> str:
     if isinstance(c, float | np.floating):
         return f"{c:.4g}"
     return str(c)
+
+
+#: library keywords whose option has another name (keyword -> the option's ``dest``)
+KEYWORD_DESTS = {"n_starts": "starts"}
+
+
+def option_map(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Python keyword -> the option of ``parser`` that sets it (``{"negative": "--negative",
+    "n_starts": "--starts"}``): each option's first long name, by its ``dest``, and the
+    keywords of :data:`KEYWORD_DESTS` whose ``dest`` the parser has."""
+    by_dest: dict[str, str] = {}
+    for action in parser._actions:
+        longs = [s for s in action.option_strings if s.startswith("--")]
+        if longs and action.dest not in by_dest:
+            by_dest[action.dest] = longs[0]
+    out = dict(by_dest)
+    out.update({k: by_dest[d] for k, d in KEYWORD_DESTS.items() if d in by_dest})
+    return out
+
+
+def cli_text(text: str, args: argparse.Namespace) -> str:
+    """A library message in the syntax of the command that prints it: its keyword hints
+    (:func:`gonio.hints.keyword`) written as the command's options (``n_starts=`` ->
+    ``--starts``); ``text`` unchanged without a subcommand's parser in ``args``."""
+    from gonio.hints import as_options
+
+    parser = getattr(args, "_parser", None)
+    return as_options(text, option_map(parser)) if parser is not None else text

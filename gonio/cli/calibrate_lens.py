@@ -10,9 +10,20 @@ HELP = "calibrate a fisheye lens (Kannala-Brandt) from ChArUco board images"
 
 def add_arguments(parser) -> None:
     parser.add_argument("images", nargs="+", help="8-bit board images")
-    parser.add_argument("--squares", type=int, nargs=2, default=(9, 7), metavar=("X", "Y"))
-    parser.add_argument("--square-length", type=float, default=0.04, help="metres")
-    parser.add_argument("--marker-length", type=float, default=0.02, help="metres")
+    parser.add_argument(
+        "--squares",
+        type=int,
+        nargs=2,
+        default=(9, 7),
+        metavar=("X", "Y"),
+        help="ChArUco board squares across and down",
+    )
+    parser.add_argument(
+        "--square-length", type=float, default=0.04, help="side of a board square, metres"
+    )
+    parser.add_argument(
+        "--marker-length", type=float, default=0.02, help="side of an ArUco marker, metres"
+    )
     parser.add_argument(
         "--out", required=True, type=output_file, help="lens-calibration JSON to write"
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 from gonio.cli._common import add_json_option, check_output_dir, int_in, output_dir, write_json
 
@@ -87,13 +88,13 @@ def _plan_options(group) -> None:
 
 def _instrument_options(group) -> None:
     group.add_argument(
-        "--instrument-preset",
         "--preset",
+        "--instrument-preset",  # the same option's older name, kept as an alias
         dest="preset",
         default=None,
         choices=["modern", "ward1992", "cornell2005", "ideal"],
         help="the instrument's build and its imperfections (default modern on lbl, "
-        "cornell2005 on cornell; ideal = none)",
+        "cornell2005 on cornell; ideal = none; --instrument-preset is the same option)",
     )
     group.add_argument(
         "--instrument-seed",
@@ -146,7 +147,21 @@ def _output_options(group) -> None:
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     group.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    group.add_argument(
+        "--raw",
+        choices=("keep", "compressed", "none"),
+        default="keep",
+        help="LBL: the raw frames once the campaign is done: kept as written, compressed "
+        "(lossless LZW, read back bit for bit; ~3x smaller) or removed (no --resume then)",
+    )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    group.add_argument(
+        "--plot-dpi",
+        type=int_in(50, 1200, "dots per inch"),
+        default=None,
+        metavar="DPI",
+        help="resolution of the PNG plots (default 200; 300-600 for print)",
+    )
     group.add_argument(
         "--workers",
         type=int,
@@ -219,6 +234,7 @@ _LBL_ONLY = {
     "--workers": ("workers", None),
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
+    "--raw": ("raw", "keep"),
 }
 _CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
 
@@ -273,6 +289,8 @@ def _run_cornell(args) -> int:
 
 
 def run(args) -> int:
+    if args.plot_dpi is not None:  # read by gonio.plots.figures.plot_dpi, in the plot process too
+        os.environ["GONIO_PLOT_DPI"] = str(args.plot_dpi)
     _refuse_other_instrument(args)
     if args.instrument == "cornell":
         return _run_cornell(args)
@@ -309,9 +327,14 @@ def run(args) -> int:
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
+    from gonio.campaign.raw import disk_usage, keep_raw
+
+    keep_raw(res.out, args.raw)
+    disk = disk_usage(res.out)
     if not args.quiet:
         print(campaign.summary_table(res.summary))
-        print(f"results in {res.out}")
+        print(f"results in {res.out}: {disk['total'] / 1e6:.1f} MB on the disk, raw frames "
+              f"{disk['raw'] / 1e6:.1f} MB ({args.raw})")  # fmt: skip
     if args.json:
-        write_json(args.json, res.summary)
+        write_json(args.json, {**res.summary, "disk_bytes": disk, "raw": args.raw})
     return 0 if res.summary["converged"] else 1

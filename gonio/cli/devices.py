@@ -33,14 +33,28 @@ HELP = "fake ESP300 / USB2000+ / PTP camera on a simulated bench (gonio devices 
 
 def add_arguments(parser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION")
-    p = sub.add_parser("serve", help="start the fakes and print how to reach them")
+    p = sub.add_parser(
+        "serve",
+        help="start the fakes and print how to reach them",
+        description="Start the fake ESP300 motion controllers (on a pseudo-terminal and a "
+        "loopback TCP port), the fake USB2000+ spectrometer and PTP camera (on a fake USB bus) "
+        "on a simulated bench of the chosen instrument, print how to reach each device (one "
+        "line each, or JSON), and serve them until interrupted (Ctrl-C); with --libusb and a "
+        "program after '--', run that program on the emulated USB bus and return its exit code.",
+        formatter_class=parser.formatter_class,
+    )
     p.add_argument(
         "--instrument",
         choices=("lbl", "cornell"),
         default="lbl",
         help="bench layout and instrument simulator (default lbl)",
     )
-    p.add_argument("--material", default=None, help="material preset of the sample")
+    p.add_argument(
+        "--material",
+        default=None,
+        help="material preset of the sample (default: the diffuse standard on lbl, a "
+        "Lambertian sample on cornell)",
+    )
     p.add_argument(
         "--time-scale",
         type=float,
@@ -174,6 +188,13 @@ def _check_serve_args(args) -> tuple[list[tuple[str, str, float]], list[str]]:
     return faults, command
 
 
+def _sample_label(args) -> str:
+    """What the bench's sample is: ``--material``, else what the instrument puts there."""
+    if args.material is not None:
+        return args.material
+    return "standard (no --material)" if args.instrument == "lbl" else "lambert (no --material)"
+
+
 def _make_bench(args):
     """The simulated bench of ``--instrument`` with the sample, seed, noise and time scale."""
     from gonio.campaign.drivers import cornell_fake_bench
@@ -253,7 +274,7 @@ def _usb_and_bench_records(args, bench, fakes: dict, name: str, usb_server: str)
         {
             "device": "bench",
             "instrument": args.instrument,
-            "material": args.material,
+            "material": _sample_label(args),
             "seed": int(args.seed),
             "noise": args.noise == "on",
             "time_scale": float(args.time_scale),
@@ -309,7 +330,7 @@ def _describe(rec: dict, args, name: str, usb_server: str) -> str:
         )
     if rec["device"] == "bench":
         return (
-            f"bench: instrument {args.instrument}, material {args.material}, seed "
+            f"bench: instrument {args.instrument}, material {_sample_label(args)}, seed "
             f"{args.seed}, noise {args.noise}, time x{args.time_scale:g}; Ctrl-C to stop"
         )
     if rec["device"] == "libusb":

@@ -34,11 +34,18 @@ def _vector(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser) -> None:
+    parser.usage = (
+        "gonio export pabopto|bsdf SAMPLES OUT [options]\n"
+        "       gonio export material OUT (--fit fit.json | --model M [--param P=V]) [options]"
+    )
     parser.add_argument("what", choices=["pabopto", "bsdf", "material"], help="what to write")
     parser.add_argument(
-        "source", help="samples table (.csv/.npz) for pabopto/bsdf; the output folder for material"
+        "source",
+        metavar="SAMPLES|OUT",
+        help="pabopto, bsdf: the samples table to export (.csv/.npz); material: the output "
+        "folder to write material.rad into",
     )
-    parser.add_argument("out", nargs="?", help="output folder (pabopto, bsdf)")
+    parser.add_argument("out", metavar="OUT", nargs="?", help="pabopto, bsdf: the output folder")
     parser.add_argument("--name", default="gonio", help="sample / material name (default gonio)")
     parser.add_argument(
         "--negative",
@@ -62,11 +69,18 @@ def add_arguments(parser) -> None:
         "points; 0 = never split; default 2)",
     )
     parser.add_argument("--max-lobes", type=int, default=None, help="bsdf2ttree -l (default 15000)")
-    parser.add_argument("--kind", default="klems", choices=["klems", "ttree"], help="BSDF form")
+    parser.add_argument(
+        "--kind",
+        default="klems",
+        choices=["klems", "ttree"],
+        help="BSDF form: Klems basis (bsdf2klems) or tensor tree (bsdf2ttree)",
+    )
     parser.add_argument(
         "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
     )
-    parser.add_argument("--resolution", type=int, default=6, help="bsdf2ttree -g (4..7)")
+    parser.add_argument(
+        "--resolution", type=int, default=6, help="tensor-tree resolution, bsdf2ttree -g (4..7)"
+    )
     parser.add_argument("--reciprocity", action="store_true", help="bsdf2ttree +a")
     parser.add_argument(
         "--symmetry",
@@ -74,7 +88,7 @@ def add_arguments(parser) -> None:
         help="pabopto2bsdf -s (default: inferred from the incident azimuths)",
     )
     parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
-    parser.add_argument("--nproc", type=int, default=1, help="pabopto2bsdf -n")
+    parser.add_argument("--nproc", type=int, default=1, help="processes of pabopto2bsdf (-n)")
     parser.add_argument("--fit", help="fit.json (material): its model and parameters")
     parser.add_argument("--model", help="model name (material, instead of --fit)")
     parser.add_argument(

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, format_table, write_json
+from gonio.cli._common import add_json_option, cli_text, format_table, write_json
 
 COMMAND = "fit"
 HELP = "fit a BRDF model (or a sum 'lambert + ward') to a samples file"
@@ -90,7 +90,7 @@ def run(args) -> int:
         f"n = {r.n_samples}, rms = {r.rms:.4g} sr^-1, chi2/dof = {r.chi2_dof:.4g}"
     )
     for note in r.message.split("; note: ")[1:]:
-        print("note: " + note)
+        print("note: " + cli_text(note, args))
     if args.json:
         d = r.to_dict()
         d["samples"] = str(args.samples)

@@ -42,9 +42,16 @@ def add_arguments(parser) -> None:
         metavar="NAME=VALUE",
         help="model parameter (repeatable; with --model or to override a --material)",
     )
-    parser.add_argument("--theta-i", type=float, default=30.0, help="incidence polar angle, deg")
+    parser.add_argument(
+        "--theta-i", type=float, default=30.0, help="incidence polar angle θi, degrees"
+    )
     parser.add_argument("--phi-i", type=float, default=0.0, help="incidence azimuth, deg")
-    parser.add_argument("--mirror", choices=("ellipsoid", "hemisphere"), default="ellipsoid")
+    parser.add_argument(
+        "--mirror",
+        choices=("ellipsoid", "hemisphere"),
+        default="ellipsoid",
+        help="dome shape: Ward's hemi-ellipsoid or a hemisphere",
+    )
     parser.add_argument("--radius", type=float, default=0.15, help="dome radius R, m")
     parser.add_argument(
         "--half-separation", type=float, default=0.01, help="D, half the lens-sample distance, m"
@@ -55,10 +62,21 @@ def add_arguments(parser) -> None:
         help="fisheye model: equidistant, equisolid, stereographic, orthographic, kannala_brandt",
     )
     size = int_in(2, MAX_SIDE, "pixels per side; memory grows with width x height")
-    parser.add_argument("--width", type=size, default=640)
-    parser.add_argument("--height", type=size, default=480)
-    parser.add_argument("--exposure", type=float, default=0.01, help="exposure time, s")
-    parser.add_argument("--f-number", type=float, default=4.0)
+    parser.add_argument(
+        "--width", type=size, default=640, help=f"image width, pixels (2..{MAX_SIDE})"
+    )
+    parser.add_argument(
+        "--height", type=size, default=480, help=f"image height, pixels (2..{MAX_SIDE})"
+    )
+    parser.add_argument(
+        "--exposure",
+        type=float,
+        default=0.01,
+        help="exposure time, seconds; a glossy sample's highlight may saturate, see --bracket",
+    )
+    parser.add_argument(
+        "--f-number", type=float, default=4.0, help="the lens's aperture, f-number N (f/N)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="noise seed (recorded)")
     parser.add_argument("--no-noise", action="store_true", help="noise-free image")
     parser.add_argument("--binning", action="store_true", help="reduce to Ward's 108 x 80")

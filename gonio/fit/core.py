@@ -101,6 +101,7 @@ from gonio._validate import check_scalar
 from gonio.brdf.base import BRDF
 from gonio.brdf.composite import Sum
 from gonio.fit.linear import solve_bounded
+from gonio.hints import keyword
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -1399,7 +1400,7 @@ def _chi2_note(chi2_dof: float, has_sigma: bool) -> str:
         return ""
     return (
         f"; note: chi2/dof = {chi2_dof:.3g} with the samples' own sigma: a local minimum or a "
-        "model that cannot describe the data (try n_starts= or init=)"
+        f"model that cannot describe the data (try {keyword('n_starts')} or {keyword('init')})"
     )
 
 
@@ -1415,7 +1416,7 @@ def _identifiability_note(rank_ok: bool, unbounded: list[str]) -> str:
     which = f" ({', '.join(unbounded)} unconstrained)" if unbounded else ""
     return (
         f"; note: not identifiable: the samples do not determine every free parameter{which}; "
-        "fix some (fixed=) or measure more geometries"
+        f"fix some ({keyword('fixed')}) or measure more geometries"
     )
 
 

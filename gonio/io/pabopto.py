@@ -96,6 +96,7 @@ from typing import Any
 
 import numpy as np
 
+from gonio.hints import keyword
 from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
 
@@ -339,7 +340,8 @@ def pabopto_files(
     if bad.any() and negative == "error":
         raise ValueError(
             f"samples has {int(bad.sum())} values below 0 (min {float(value.min()):.3g} sr^-1); "
-            "a BRDF cannot be negative: pass negative='clip' or 'drop' to export noisy data"
+            f"a BRDF cannot be negative: pass {keyword('negative', 'clip', 'drop')} to export "
+            "noisy data"
         )
     inc = incidences(samples)
     if len(inc) < 2:

@@ -2,7 +2,8 @@
 
 Columns (``docs/architecture.md``, File formats): ``theta_i, phi_i, theta_o, phi_o`` (radians),
 ``value`` (sr⁻¹), ``sigma`` (its standard error), optional ``wavelength_nm``. Files: CSV with a
-commented ``# key: json-value`` metadata header, and ``.npz`` (read with
+commented ``# key: json-value`` metadata header whose first line, ``# units: {...}``, gives
+each column's unit (:data:`UNITS`; read back, it is not metadata), and ``.npz`` (read with
 ``allow_pickle=False``). Writes go to a temporary file renamed into place, so a failure never
 leaves a half-written table; malformed files raise :class:`ValueError` naming the problem.
 """
@@ -20,7 +21,22 @@ import numpy as np
 from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import COLUMNS, BRDFSamples
 
-__all__ = ["csv_rows", "read_samples", "write_csv_parts", "write_samples"]
+__all__ = ["UNITS", "csv_rows", "read_samples", "write_csv_parts", "write_samples"]
+
+#: the unit of each column, written as a CSV's first header line (``# units: {...}``)
+UNITS = {
+    "theta_i": "rad",
+    "phi_i": "rad",
+    "theta_o": "rad",
+    "phi_o": "rad",
+    "value": "sr^-1",
+    "sigma": "sr^-1",
+    "wavelength_nm": "nm",
+}
+
+
+def _units(columns: tuple[str, ...] | list[str]) -> dict[str, str]:
+    return {c: UNITS[c] for c in columns if c in UNITS}
 
 
 def write_samples(samples: BRDFSamples, path: str | os.PathLike) -> Path:
@@ -77,7 +93,8 @@ def write_csv_parts(
     path: str | os.PathLike, metadata: dict, columns: tuple[str, ...], parts: list[str]
 ) -> Path:
     """Write a samples CSV from its metadata, column names and :func:`csv_rows` parts."""
-    head = "".join(f"# {k}: {json.dumps(v)}\n" for k, v in metadata.items())
+    head = f"# units: {json.dumps(_units(columns))}\n"
+    head += "".join(f"# {k}: {json.dumps(v)}\n" for k, v in metadata.items())
     text = head + ",".join(columns) + "\n" + "".join(parts)
     return atomic_write_bytes(path, text.encode())
 
@@ -121,6 +138,8 @@ def _read_csv(path: Path) -> BRDFSamples:
             rows.append(s)
     if header is None:
         raise ValueError("no header line with column names")
+    if meta.get("units") == _units(header):  # the writer's units line, not metadata
+        del meta["units"]
     missing = [c for c in COLUMNS if c not in header]
     if missing:
         raise ValueError(f"missing column(s) {missing}; header is {header}")

@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from gonio.plots.figures import _figure, _save
+from gonio.plots.figures import DOUBLE, _figure, _save, _style
 
 __all__ = ["budget_rows", "plot_budget"]
 
@@ -120,54 +120,111 @@ def _minor_marks(ax: Any) -> None:
     xa.set_minor_locator(NullLocator())
 
 
-def plot_budget(budget: Mapping[str, Any], path: str | os.PathLike, *, title: str = "") -> Path:
-    """Draw the budget (a campaign summary's ``budget`` entry) to ``path`` (PNG, atomic)."""
+def _unit(budget: Mapping[str, Any], name: str) -> str:
+    """The unit of parameter ``name`` (``tau`` -> ``µm``) from the model named by the
+    budget's ``model`` entry (its registry spec; ``k_dd[3]`` as ``k_dd``); ``""`` for a
+    dimensionless one or an unknown model."""
+    model = budget.get("model")
+    if not isinstance(model, str):
+        return ""
+    from gonio import brdf
+
+    try:
+        params = brdf.spec(model).params
+    except (KeyError, ValueError):
+        return ""
+    p = params.get(name.split("[", 1)[0].split(" ", 1)[0])
+    unit = "" if p is None or p.unit in ("", "1") else p.unit
+    return {"um": "µm"}.get(unit, unit)
+
+
+def plot_budget(
+    budget: Mapping[str, Any],
+    path: str | os.PathLike,
+    *,
+    title: str = "",
+    dpi: float | None = None,
+) -> Path:
+    """Draw the budget (a campaign summary's ``budget`` entry) to ``path`` (PNG, atomic).
+
+    The panels share their x range, so that a parameter's budget reads against another's;
+    a legend names every colour and line. A parameter's unit comes from the budget's
+    ``model`` entry when it has one (:func:`_unit`)."""
     params = list(budget["params"])
     if not params:
         raise ValueError("the budget has no fitted parameter to plot")
+    with _style():
+        return _draw(budget, params, path, title, dpi)
+
+
+def _draw(budget, params, path, title, dpi) -> Path:
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    from matplotlib.ticker import LogLocator
+
     rows = budget_rows(budget)
     n_p = len(params)
-    fig = _figure(3.2 * n_p + 1.6, 0.32 * len(rows) + 1.6)
-    axes = fig.subplots(1, n_p, sharey=True, squeeze=False)[0]
+    fig = _figure(min(DOUBLE, 1.5 + 1.6 * n_p), 0.16 * len(rows) + 1.7, dpi)
+    axes = fig.subplots(1, n_p, sharey=True, sharex=True, squeeze=False)[0]
     ys = list(range(len(rows)))[::-1]
-    for ax, p in zip(axes, params):
-        vals = [max(r[1][p], 1e-9) for r in rows]
-        colours = ["0.4" if i == 0 else ("tab:blue" if r[2] else "tab:orange")
-                   for i, r in enumerate(rows)]  # fmt: skip
-        bars = ax.barh(ys, [100 * v for v in vals], color=colours)
-        for bar, r in zip(bars, rows):
-            if not r[2]:
-                bar.set_hatch("//")
+    stat, corr, uncorr = "0.45", "tab:blue", "tab:orange"
+    # one x range for every panel: the largest bar or expanded line, four decades below it
+    top = 1e-6
+    for p in params:
         pv = abs(budget["params"][p])
-        lines = []
-        for key, style in (("combined", "-"), ("expanded", "--")):
+        top = max(top, *(100 * r[1][p] for r in rows if math.isfinite(r[1][p])))
+        for key in ("combined", "expanded"):
             v = budget[key][p]
             if v is not None and math.isfinite(v) and pv:
-                lines.append(100 * v / pv)
-                ax.axvline(lines[-1], color="k", ls=style, lw=1,
-                           label=f"{key} {lines[-1]:.3g}%")  # fmt: skip
+                top = max(top, 100 * v / pv)
+    left = max(top * 1e-5, 1e-7)
+    for ax, p in zip(axes, params):
+        vals = [max(r[1][p], 1e-9) for r in rows]
+        colours = [stat if i == 0 else (corr if r[2] else uncorr) for i, r in enumerate(rows)]
+        bars = ax.barh(ys, [100 * v for v in vals], color=colours, height=0.7, lw=0)
+        for bar, r in zip(bars, rows):
+            if not r[2]:
+                bar.set_hatch("////")
+                bar.set_edgecolor("white")
+        pv = abs(budget["params"][p])
+        told = []
+        for key, style, sym in (("combined", "-", "u_c"), ("expanded", "--", "U")):
+            v = budget[key][p]
+            if v is not None and math.isfinite(v) and pv:
+                ax.axvline(100 * v / pv, color="k", ls=style, lw=0.8)
+                told.append(f"{sym} {100 * v / pv:.2g}%")
         ax.set_xscale("log")
-        ax.xaxis.set_major_locator(_in_view()(ax.xaxis.get_major_locator()))
-        # the axis holds the largest bar and the expanded line (U can exceed 3x every bar)
-        top = max(100 * max(vals), *lines, 1e-6)
-        left = max(top * 1e-4, 1e-6)
+        ax.xaxis.set_major_locator(_in_view()(LogLocator(numticks=4)))
         ax.set_xlim(left, top * 3)
         for y, v in zip(ys, vals):
             if 100 * v < left:  # a term too small to draw is named as such, not left blank
-                ax.text(left * 1.1, y, f"< {left:.1g}%", va="center", fontsize=6, color="0.3")
+                ax.text(left * 1.15, y, f"< {left:.1g}%", va="center", fontsize=5.5,
+                        color="0.3")  # fmt: skip
+        unit = _unit(budget, p)
+        name, _, note = p.partition(" (")  # "k_dd (median of 31 bands)": the note below
+        head = [f"{name} = {budget['params'][p]:.4g}" + (f" {unit}" if unit else "")]
+        head += [f"({note}"] if note else []
         # y given: the title stays above the axes (its place with x ticks at the bottom)
         # without the draw-time search of every y tick label's extent for a clash
-        ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=9, y=1.0)
-        ax.set_xlabel("relative standard uncertainty (%)", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_title("\n".join(head + [", ".join(told)]), fontsize=6.5, y=1.0)
+        ax.set_xlabel("relative u (%)", fontsize=6.5)
+        ax.tick_params(labelsize=6.5)
         _minor_marks(ax)
-        ax.legend(fontsize=6, loc="lower right")
     axes[0].set_yticks(ys)
-    axes[0].set_yticklabels([r[0] for r in rows], fontsize=7)
+    axes[0].set_yticklabels([r[0] for r in rows], fontsize=6.5)
     k = budget.get("k", 2.0)
-    fig.suptitle(f"{title}  uncertainty budget (GUM, k = {k:g}; hatched: uncorrected)",
-                 fontsize=9)  # fmt: skip
-    fig.tight_layout()
+    handles = [
+        Patch(facecolor=stat, label="statistical (fit)"),
+        Patch(facecolor=corr, label="effect, corrected (residual)"),
+        Patch(facecolor=uncorr, hatch="////", edgecolor="white", label="effect, uncorrected"),
+        Line2D([], [], color="k", lw=0.8, label="combined u_c"),
+        Line2D([], [], color="k", lw=0.8, ls="--", label=f"expanded U (k = {k:g})"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=6, handlelength=1.6,
+               columnspacing=1.0, bbox_to_anchor=(0.5, 0.0))  # fmt: skip
+    fig.suptitle(f"{title}  uncertainty budget (GUM): relative standard uncertainty u of "
+                 "each parameter".strip(), fontsize=7.5)  # fmt: skip
+    fig.tight_layout(rect=(0, 0.28 / fig.get_figheight(), 1, 1), w_pad=0.5)
     # the layout is done: without a layout engine (tight_layout leaves a placeholder one)
     # savefig draws the figure once, not once more beforehand (the same pixels)
     fig.set_layout_engine(None)

@@ -93,8 +93,9 @@ def test_realistic_campaign_reports_a_budget_that_covers_the_truth(tmp_path):
     assert 0 < s["estimated_real_instrument_u_h"] < s["estimated_real_instrument_h"]
     png = tmp_path / "plots" / "budget.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and on_disk["files"]["plots"] == [
-        "plots/budget.png"
-    ]
+        "plots/budget.png", "plots/incidence_plane.png", "plots/residuals.png"
+    ]  # fmt: skip
+    assert all((tmp_path / p).is_file() for p in on_disk["files"]["plots"])
     ideal = run_cornell_campaign(
         "garnet_red_paint",
         plan="incidence",

@@ -83,3 +83,25 @@ def test_random_npz_bytes_give_a_table_or_a_value_error(tmp_path_factory, raw):
     except ValueError:
         return
     _check(s)
+
+
+@pytest.mark.parametrize("spectral", [False, True])
+def test_csv_header_gives_units_and_reads_back_identically(tmp_path, spectral):
+    from gonio.io.samples_table import write_samples
+
+    rng = np.random.default_rng(3)
+    n = 50
+    cols = [rng.uniform(0, 1.5, n), rng.uniform(-3, 3, n), rng.uniform(0, 1.5, n)]
+    cols += [rng.uniform(-3, 3, n), rng.lognormal(size=n), rng.uniform(0, 0.1, n)]
+    wl = rng.choice([400.0, 550.0, 700.0], n) if spectral else None
+    meta = {"material": "x", "seed": 0, "note": "units: rad"}
+    s = BRDFSamples(*cols, wavelength_nm=wl, metadata=meta)
+    p = tmp_path / "t.csv"
+    write_samples(s, p)
+    first = p.read_text().splitlines()[0]
+    assert first.startswith("# units: ") and '"theta_i": "rad"' in first
+    assert '"value": "sr^-1"' in first and ('"wavelength_nm": "nm"' in first) == spectral
+    back = read_samples(p)
+    assert back.metadata == meta
+    for c in s.columns:
+        assert np.array_equal(getattr(back, c), getattr(s, c)), c

@@ -94,3 +94,96 @@ def test_decade_labels_without_mathtext():
     assert plots.decade_label(1.0) == "10⁰"
     assert plots.decade_label(2e-3) == "0.002"
     assert plots.decade_label(0.0) == "" and plots.decade_label(float("nan")) == ""
+
+
+# -- publication figures (issue 32) ------------------------------------------------------------
+def _texts(fig) -> str:
+    out = [t.get_text() for t in fig.texts]
+    for ax in fig.axes:
+        out += [ax.get_title(), ax.get_xlabel(), ax.get_ylabel()]
+        out += [t.get_text() for t in ax.texts]
+        leg = ax.get_legend()
+        out += [t.get_text() for t in leg.get_texts()] if leg else []
+    for leg in fig.legends:
+        out += [t.get_text() for t in leg.get_texts()]
+    return "\n".join(out)
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """The figures the plot functions make, instead of their PNGs."""
+    from gonio.plots import figures
+
+    figs = []
+    monkeypatch.setattr(figures, "_save", lambda fig, path: figs.append(fig) or path)
+    return figs
+
+
+def test_log_axis_reads_whatever_its_range():
+    from gonio.plots.figures import _figure
+
+    for lo, hi, want in ((0.14, 0.52, {"0.2", "0.3", "0.4", "0.5"}), (0.02, 0.09, {"0.02"}),
+                         (1e-3, 10.0, {"10⁻³", "10⁰", "10¹"})):  # fmt: skip
+        fig = _figure(3.5, 2.5)
+        ax = fig.add_subplot()
+        ax.plot([0, 1], [lo, hi])
+        plots.log_axis(ax)
+        ax.set_ylim(lo, hi)
+        fig.canvas.draw()
+        labels = {t.get_text() for t in ax.get_yticklabels(minor=True) + ax.get_yticklabels()}
+        labels.discard("")
+        assert want <= labels, (lo, hi, labels)
+        assert len(labels) >= 3
+
+
+def test_figures_at_150_dpi_or_the_chosen(tmp_path, monkeypatch):
+    import cv2
+
+    s = _table(100).subset(np.flatnonzero(_table(100).phi_i == 0))
+    m = materials.get("rolled_brass")
+    img = cv2.imread(str(plots.plot_incidence_plane(s, m, tmp_path / "a.png")))
+    assert img.shape[1] == round(3.5 * 150)  # one panel: a single-column figure
+    monkeypatch.setenv("GONIO_PLOT_DPI", "300")
+    img = cv2.imread(str(plots.plot_incidence_plane(s, m, tmp_path / "b.png")))
+    assert img.shape[1] == round(3.5 * 300)
+    monkeypatch.setenv("GONIO_PLOT_DPI", "30")
+    with pytest.raises(ValueError, match="outside"):
+        plots.plot_incidence_plane(s, m, tmp_path / "c.png")
+
+
+def test_figures_say_what_they_show(drawn, tmp_path):
+    s = _table(3000)
+    m = materials.get("rolled_brass")
+    plots.plot_residuals(s, m, tmp_path / "r.png", max_points=500)
+    text = _texts(drawn[-1])
+    assert "500 of 18,000 points shown" in text
+    assert "f: fitted model, y: measured BRDF, σ" in text and "end bins also hold" in text
+    plots.plot_hemisphere(s, tmp_path / "h.png", max_panels=4)
+    text = _texts(drawn[-1])
+    assert "4 of 5 incidences shown" in text  # (θi 0° has one azimuth)
+    assert {"source direction", "specular direction", "no sample"} <= set(text.splitlines())
+    plots.plot_incidence_plane(s, m, tmp_path / "i.png", max_points=20)
+    text = _texts(drawn[-1])
+    assert "fitted model" in text and "158 samples within 0.5° of the plane, 99 shown" in text
+    assert {"θi = 0°", "θi = 30°", "θi = 60°"} <= set(text.splitlines())  # every panel's θi
+
+
+def test_outliers_do_not_set_the_residual_axis(drawn, tmp_path):
+    s = _table(200)
+    v = s.value.copy()
+    v[:2] *= 100.0  # two samples far off: 100 σ
+    s = BRDFSamples(s.theta_i, s.phi_i, s.theta_o, s.phi_o, v, s.sigma)
+    plots.plot_residuals(s, materials.get("rolled_brass"), tmp_path / "r.png")
+    lo, hi = drawn[-1].axes[0].get_ylim()
+    assert hi <= 5.0 and lo >= -5.0
+    assert "2 beyond the axis" in _texts(drawn[-1])
+
+
+def test_empty_cells_are_outside_the_colour_scale():
+    import matplotlib as mpl
+
+    from gonio.plots.figures import EMPTY
+
+    magma = mpl.colormaps["magma"](np.linspace(0, 1, 256))[:, :3]
+    gap = np.abs(magma - np.array(mpl.colors.to_rgb(EMPTY))).sum(axis=1).min()
+    assert gap > 0.3
