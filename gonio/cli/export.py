@@ -9,6 +9,10 @@
   (:func:`gonio.io.radiance.model_material`), optionally ``--bsdf klems|ttree`` built from
   its ``.cal`` (:func:`gonio.io.pabopto.build_model_bsdf`).
 
+* ``gonio export mitsuba SAMPLES OUT.bsdf`` — the samples interpolated onto Mitsuba 3's
+  measured BSDF grid, their coverage printed; ``gonio export mitsuba --fit fit.json OUT.bsdf``
+  (or ``--model``) — the model tabulated on it (:mod:`gonio.io.mitsuba`).
+
 The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 """
 
@@ -20,7 +24,10 @@ from pathlib import Path
 from gonio.cli._common import add_json_option, write_json
 
 COMMAND = "export"
-HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
+HELP = (
+    "export samples or a fit to Radiance (PAB-Opto files, BSDF XML, material.rad) "
+    "or to Mitsuba 3 (measured .bsdf)"
+)
 
 
 def _vector(text: str) -> tuple[float, float, float]:
@@ -34,11 +41,15 @@ def _vector(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("what", choices=["pabopto", "bsdf", "material"], help="what to write")
     parser.add_argument(
-        "source", help="samples table (.csv/.npz) for pabopto/bsdf; the output folder for material"
+        "what", choices=["pabopto", "bsdf", "material", "mitsuba"], help="what to write"
     )
-    parser.add_argument("out", nargs="?", help="output folder (pabopto, bsdf)")
+    parser.add_argument(
+        "source",
+        help="samples table (.csv/.npz/.astm) for pabopto/bsdf/mitsuba; the output folder for "
+        "material; OUT.bsdf for mitsuba --fit",
+    )
+    parser.add_argument("out", nargs="?", help="output folder (pabopto, bsdf); OUT.bsdf (mitsuba)")
     parser.add_argument("--name", default="gonio", help="sample / material name (default gonio)")
     parser.add_argument(
         "--negative",
@@ -89,7 +100,62 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--bsdf", choices=["klems", "ttree"], help="material: also build the model's BSDF XML"
     )
+    from gonio.io import mitsuba
+
+    parser.add_argument(
+        "--grid",
+        type=int,
+        default=mitsuba.DEFAULT_RESOLUTION,
+        help=f"mitsuba: half-vector grid NxN (default {mitsuba.DEFAULT_RESOLUTION})",
+    )
+    parser.add_argument(
+        "--theta-i",
+        type=int,
+        default=mitsuba.DEFAULT_THETA_I,
+        help=f"mitsuba --fit: incident elevations (default {mitsuba.DEFAULT_THETA_I})",
+    )
+    parser.add_argument(
+        "--phi-i",
+        type=int,
+        default=mitsuba.DEFAULT_PHI_I,
+        help=f"mitsuba --fit, anisotropic model: incident azimuths (default "
+        f"{mitsuba.DEFAULT_PHI_I})",
+    )
+    parser.add_argument(
+        "--channels",
+        choices=["grey", "rgb", "spectral"],
+        help="mitsuba: file channels (default grey or spectral, as the source)",
+    )
     add_json_option(parser)
+
+
+def _mitsuba(args, report: dict) -> None:
+    from gonio.io import mitsuba
+
+    if args.fit is not None or args.model is not None:
+        out = args.out or args.source
+        if args.out is not None and args.source != args.out:
+            raise ValueError("mitsuba --fit: give only OUT.bsdf")
+        model = _model(args)
+        iso = mitsuba.is_isotropic(model)
+        fields = mitsuba.model_table(
+            model, args.grid, args.theta_i, None if iso else args.phi_i, args.channels
+        )
+    else:
+        from gonio.io.samples_table import read_samples
+
+        if args.out is None:
+            raise ValueError("mitsuba: give OUT.bsdf after the samples table")
+        out = args.out
+        fields = mitsuba.samples_table(read_samples(args.source), args.grid, args.channels)
+    path = mitsuba.write_bsdf(out, fields)
+    meta = mitsuba.coverage_summary(fields)
+    shape = fields["rgb" if "rgb" in fields else "spectra"].shape
+    line = f"{meta['channels']} measured BSDF {path} ({path.stat().st_size} bytes, table {shape})"
+    if "coverage" in meta:
+        line += f"; samples cover {100 * meta['coverage']:.1f} % of the grid above the horizon"
+    print(line)
+    report.update(file=str(path), bytes=path.stat().st_size, shape=list(shape), **meta)
 
 
 def _model(args):
@@ -130,7 +196,9 @@ def _run(args) -> int:
 
     up = _vector(args.up)
     report: dict = {"what": args.what}
-    if args.what == "material":
+    if args.what == "mitsuba":
+        _mitsuba(args, report)
+    elif args.what == "material":
         from gonio.io import radiance
 
         out = Path(args.source)

@@ -68,6 +68,7 @@ __all__ = [
     "MeasuredTable",
     "Warp2D",
     "coverage_summary",
+    "is_isotropic",
     "model_table",
     "read_bsdf",
     "read_tensor",
@@ -593,6 +594,27 @@ def model_table(
     return _fields(values, theta_i, phi_i, kind, wl_out, lum, desc, meta)
 
 
+def is_isotropic(model, n: int = 512) -> bool:
+    """Whether f_r is unchanged by a rotation of wi and wo together about the normal.
+
+    Checked at ``n`` random direction pairs and random rotations to 1e-9 relative.
+    """
+    from gonio.geometry import sample_uniform_hemisphere
+
+    rng = np.random.default_rng(54321)
+    wi = sample_uniform_hemisphere(n, rng)[0]
+    wo = sample_uniform_hemisphere(n, rng)[0]
+    a = rng.uniform(0, 2 * np.pi, n)
+    c, s = np.cos(a), np.sin(a)
+
+    def rot(w: NDArray) -> NDArray:
+        return np.stack([c * w[:, 0] - s * w[:, 1], s * w[:, 0] + c * w[:, 1], w[:, 2]], -1)
+
+    f = np.asarray(model(wi, wo))
+    g = np.asarray(model(rot(wi), rot(wo)))
+    return bool(np.allclose(f, g, rtol=1e-9, atol=1e-12 * float(np.abs(f).max() or 1.0)))
+
+
 def _mirror_symmetric(model, n: int = 512) -> bool:
     """Whether f_r is unchanged by the mirrors x -> -x and y -> -y (of wi and wo together).
 
@@ -718,6 +740,14 @@ def samples_table(
     lum = np.zeros((len(phis), len(thetas), n, n))
     covered = np.zeros((len(phis), len(thetas)))
     wi_s, wo_s = samples_dirs(key)
+    quarter = not isotropic and bool(np.all((phis >= -1e-9) & (phis <= np.pi / 2 + 1e-9)))
+    phis_out = phis
+    if quarter:
+        # incident azimuths within [0, π/2]: the measurement's assumption of a BRDF symmetric
+        # under the x and y mirrors, which Mitsuba applies as symmetry reduction 4 (queries
+        # mirrored into φi in [-π, -π/2]); the data are turned by π (a symmetry then) to it
+        wi_s, wo_s = wi_s * [-1.0, -1.0, 1.0], wo_s * [-1.0, -1.0, 1.0]
+        phis_out = phis - np.pi
     for b, t in enumerate(thetas):
         for a, p in enumerate(phis):
             sel = (inc[:, 0] == t) & (isotropic | (inc[:, 1] == p))
@@ -740,7 +770,8 @@ def samples_table(
             fc = fc[first]
             if len(pts) < 3:
                 raise ValueError(f"samples: fewer than 3 directions at θi = {t:.6g} rad")
-            _, wo_g, dot = _slice_directions(t, 0.0 if isotropic else p, theta_m, phi_m, isotropic)
+            p_out = 0.0 if isotropic else phis_out[a]
+            _, wo_g, dot = _slice_directions(t, p_out, theta_m, phi_m, isotropic)
             up = wo_g[..., 2] > 0
             ur = np.sqrt(theta_m * 2 / np.pi)
             q = np.stack([ur * np.cos(phi_m), ur * np.sin(phi_m)], -1)
@@ -753,7 +784,9 @@ def samples_table(
             v, kind = _channels_of(g if wl is not None else g[..., 0], wl, kind)
             values[a, b] = v
             lum[a, b] = _luminance(v, kind, theta_m, dot)
-    if not isotropic:
+    if quarter:
+        values, lum, phis = _pad_quarter(values, lum, phis_out)
+    elif not isotropic:
         # wrap the azimuths around: Mitsuba reads φi in [-π, π] and holds the end slices
         values, lum, phis = _wrap_phi(values, lum, phis)
     meta = {
@@ -761,6 +794,7 @@ def samples_table(
         "coverage": float(covered.mean()),
         "coverage_per_slice": covered.round(4).tolist(),
         "isotropic": bool(isotropic),
+        "symmetry_reduction": 4 if quarter else 1,
     }
     desc = description or f"gonio: measured samples ({kind})"
     return _fields(values, thetas, phis, kind, wl if kind == "spectral" else None, lum, desc, meta)
@@ -771,6 +805,19 @@ def samples_dirs(key: NDArray) -> tuple[NDArray, NDArray]:
     from gonio.geometry import to_vector
 
     return to_vector(key[:, 0], key[:, 1]), to_vector(key[:, 2], key[:, 3])
+
+
+def _pad_quarter(values: NDArray, lum: NDArray, phis: NDArray):
+    """End slices at exactly -π and -π/2 (copies: Mitsuba holds the end slices anyway)."""
+    if phis[0] > -np.pi + 1e-9:
+        values, lum = np.concatenate([values[:1], values]), np.concatenate([lum[:1], lum])
+        phis = np.concatenate([[-np.pi], phis])
+    if phis[-1] < -np.pi / 2 - 1e-9:
+        values, lum = np.concatenate([values, values[-1:]]), np.concatenate([lum, lum[-1:]])
+        phis = np.concatenate([phis, [-np.pi / 2]])
+    phis = phis.copy()
+    phis[0], phis[-1] = -np.pi, -np.pi / 2
+    return values, lum, phis
 
 
 def _wrap_phi(values: NDArray, lum: NDArray, phis: NDArray):
