@@ -37,6 +37,7 @@ Results directory (``out``)::
     spectra/<j>.npz  raw spectra of geometry j, reduced again against the interpolated
                      references at the end (through drivers, with the drift correction)
     samples.csv      BRDF samples (31 rows per geometry, wavelength_nm column)
+    samples.astm     the same as an ASTM E1392 table, one row per geometry (gonio.io.astm)
     fit.json         the fit (FitResult.to_dict())
     summary.json     material, model, truth, fit, stderr, relative_error, rms, n_samples,
                      converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma,
@@ -82,6 +83,13 @@ __all__ = [
 ]
 
 PLANS = ("incidence", "incidence_plane", "hemispherical")
+
+
+def _write_astm(samples, path: Path) -> None:
+    """The samples as the Cornell laboratory distributes them: an ASTM E1392 table."""
+    from gonio.io.astm import write_astm
+
+    write_astm(samples, path, instrument="Cornell three-axis gonioreflectometer (gonio)")
 
 
 def _write_json(path: Path, obj: Any) -> None:
@@ -720,6 +728,7 @@ def _stages(
         if setup.out is not None:
             with ex.stage("save_samples"):
                 samples.write(setup.out / "samples.csv")
+                _write_astm(samples, setup.out / "samples.astm")
         # 3. fit
         if fit:
             if not quiet:
@@ -743,7 +752,9 @@ def _stages(
                 "timings_s": {k: round(v, 4) for k, v in ex.timings.items()},
                 "seed": setup.seed, "noise": setup.noise, **extra,
             }  # fmt: skip
-    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
+    summary["files"] = (
+        {"samples": "samples.csv", "astm": "samples.astm", "fit": "fit.json"} if setup.out else {}
+    )
     if setup.out is not None and summary.get("budget"):
         _draw_budget(setup, summary)
     if setup.out is not None:

@@ -3,7 +3,8 @@
 Columns (``docs/architecture.md``, File formats): ``theta_i, phi_i, theta_o, phi_o`` (radians),
 ``value`` (sr⁻¹), ``sigma`` (its standard error), optional ``wavelength_nm``. Files: CSV with a
 commented ``# key: json-value`` metadata header, and ``.npz`` (read with
-``allow_pickle=False``). Writes go to a temporary file renamed into place, so a failure never
+``allow_pickle=False``); ``.astm``: ASTM E1392 tables (:mod:`gonio.io.astm`). Writes go to a
+temporary file renamed into place, so a failure never
 leaves a half-written table; malformed files raise :class:`ValueError` naming the problem.
 """
 
@@ -34,7 +35,13 @@ def write_samples(samples: BRDFSamples, path: str | os.PathLike) -> Path:
         arrays = {c: getattr(samples, c) for c in samples.columns}
         np.savez(buf, **arrays, metadata=np.array(json.dumps(samples.metadata)))
         return atomic_write_bytes(path, buf.getvalue())
-    raise ValueError(f"unsupported samples file suffix {path.suffix!r}; expected .csv or .npz")
+    if suffix == ".astm":
+        from gonio.io.astm import write_astm
+
+        return write_astm(samples, path)
+    raise ValueError(
+        f"unsupported samples file suffix {path.suffix!r}; expected .csv, .npz or .astm"
+    )
 
 
 def csv_rows(samples: BRDFSamples) -> str:
@@ -95,7 +102,13 @@ def read_samples(path: str | os.PathLike) -> BRDFSamples:
             return _read_npz(path)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
-    raise ValueError(f"unsupported samples file suffix {path.suffix!r}; expected .csv or .npz")
+    if suffix == ".astm":  # (its errors name the file)
+        from gonio.io.astm import read_astm
+
+        return read_astm(path)
+    raise ValueError(
+        f"unsupported samples file suffix {path.suffix!r}; expected .csv, .npz or .astm"
+    )
 
 
 def _read_csv(path: Path) -> BRDFSamples:
