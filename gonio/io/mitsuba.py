@@ -537,6 +537,10 @@ def _source_wavelengths(wl: NDArray | None, channels: str | None) -> str:
         return "grey" if wl is None else "spectral"
     if channels not in ("grey", "rgb", "spectral"):
         raise ValueError(f"channels must be 'grey', 'rgb' or 'spectral', got {channels!r}")
+    if channels == "spectral" and wl is None:
+        raise ValueError("channels='spectral' needs a spectral source; this one is grey")
+    if channels == "grey" and wl is not None:
+        raise ValueError("channels='grey' needs a grey source; this one is spectral")
     return channels
 
 
