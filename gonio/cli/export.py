@@ -154,6 +154,8 @@ def _mitsuba(args, report: dict) -> None:
     line = f"{meta['channels']} measured BSDF {path} ({path.stat().st_size} bytes, table {shape})"
     if "coverage" in meta:
         line += f"; samples cover {100 * meta['coverage']:.1f} % of the grid above the horizon"
+        if meta.get("isotropic_assumed"):
+            line += " (isotropic assumed: the incident directions are not on a θi × φi grid)"
     print(line)
     report.update(file=str(path), bytes=path.stat().st_size, shape=list(shape), **meta)
 

@@ -692,8 +692,11 @@ def samples_table(
     channels : {"grey", "rgb", "spectral"} or None
         As :func:`model_table`.
     isotropic : bool or None
-        ``None``: isotropic when all samples share one incident azimuth. An anisotropic table
-        needs the incident directions on a θi × φi product grid.
+        ``None``: isotropic when all samples share one incident azimuth or when their incident
+        directions are not on a θi × φi product grid (``isotropic_assumed`` in the metadata);
+        anisotropic otherwise. An anisotropic table needs the product grid. Samples all in
+        one plane (an incidence-plane plan) cover only the nodes on that plane; the others
+        take the nearest sample.
     """
     from threadpoolctl import threadpool_limits
 
@@ -706,6 +709,7 @@ def samples_table(
 
 def _samples_table(samples, resolution, channels, isotropic, description) -> dict[str, Any]:
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+    from scipy.spatial import QhullError
 
     n = _check_resolution(resolution, "resolution")
     if len(samples) == 0:
@@ -739,8 +743,12 @@ def _samples_table(samples, resolution, channels, isotropic, description) -> dic
     inc_inv = inc_inv.ravel()
     thetas = np.unique(inc[:, 0])
     phis = np.unique(inc[:, 1])
+    grid = len(thetas) * len(phis) == len(inc)
+    assumed = isotropic is None and len(phis) > 1 and not grid
     if isotropic is None:
-        isotropic = len(phis) == 1
+        # one incident azimuth, or azimuths not on a θi × φi grid (an incidence-plane plan
+        # of an isotropic sample): isotropic, and the metadata says it was assumed
+        isotropic = len(phis) == 1 or not grid
     if isotropic:
         phis = np.array([0.0])
     elif len(thetas) * len(phis) != len(inc):
@@ -789,7 +797,10 @@ def _samples_table(samples, resolution, channels, isotropic, description) -> dic
             up = wo_g[..., 2] > 0
             ur = np.sqrt(theta_m * 2 / np.pi)
             q = np.stack([ur * np.cos(phi_m), ur * np.sin(phi_m)], -1)
-            inside = LinearNDInterpolator(pts, fc)(q)
+            try:
+                inside = LinearNDInterpolator(pts, fc)(q)
+            except QhullError:  # all on a line (an in-plane plan): no triangle covers a node
+                inside = np.full((*q.shape[:-1], fc.shape[1]), np.nan)
             hit = np.isfinite(inside).all(axis=-1)
             near = NearestNDInterpolator(pts, fc)(q)
             g = np.where(hit[..., None], inside, near)
@@ -808,6 +819,7 @@ def _samples_table(samples, resolution, channels, isotropic, description) -> dic
         "coverage": float(covered.mean()),
         "coverage_per_slice": covered.round(4).tolist(),
         "isotropic": bool(isotropic),
+        "isotropic_assumed": bool(assumed),
         "symmetry_reduction": 4 if quarter else 1,
     }
     desc = description or f"gonio: measured samples ({kind})"

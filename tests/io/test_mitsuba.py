@@ -218,3 +218,23 @@ def test_bad_input_is_refused_with_a_clear_error(tmp_path):
         gm.write_bsdf(tmp_path / "nan.bsdf", gm.model_table(nan, 8, 4))
     assert not (tmp_path / "nan.bsdf").exists()
     assert struct.unpack("<I", data[14:18])[0] == len(gm.read_tensor(good))
+
+
+def test_incidence_plane_samples_are_isotropic_and_cover_only_the_plane(tmp_path):
+    """A Cornell incidence-plane plan: θi on both sides of the normal, all in one plane."""
+    m = brdf.create("lambert", rho=0.5)
+    rows = [(0.0, 0.0)] + [(t, p) for t in np.radians([15.0, 45.0]) for p in (0.0, np.pi)]
+    wi, wo = [], []
+    for t, p in rows:
+        to = np.radians(np.linspace(0, 80, 17))
+        wo.append(to_vector(to, np.where(to > 0, np.pi - p, 0.0)))
+        wi.append(np.broadcast_to(to_vector(t, p), wo[-1].shape))
+    wi, wo = np.concatenate(wi), np.concatenate(wo)
+    fields = gm.samples_table(BRDFSamples.from_directions(wi, wo, m(wi, wo)), 16)
+    meta = gm.coverage_summary(fields)
+    # covered: only the nodes on the plane (the rows φm - φi = ±π and the normal's column)
+    assert meta["isotropic"] and meta["isotropic_assumed"] and meta["coverage"] < 0.2
+    t = gm.read_bsdf(gm.write_bsdf(tmp_path / "plane.bsdf", fields))
+    # in the plane the nearest samples are exact for a Lambertian surface
+    qi, qo = to_vector(np.radians(15.0), 0.0), to_vector(np.radians(30.0), np.pi)
+    assert float(t(qi, qo)) == pytest.approx(0.5 / np.pi, rel=0.02)
