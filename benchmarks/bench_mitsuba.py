@@ -244,11 +244,42 @@ def _truth_at(s, model):
 
 
 def render(out: Path, tmp: Path) -> dict:
+    """The rolled-brass fit on a sphere; and a Lambertian file against Mitsuba's ``diffuse``.
+
+    The second pair checks the file's sampling (its luminance table and the plugin's pdf)
+    end to end: the same scene rendered with gonio's tabulated Lambertian (ρ = 0.5) and with
+    Mitsuba's own ``diffuse`` BSDF must agree to the Monte Carlo noise.
+    """
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
     m = materials.get("rolled_brass")
     path = gm.write_bsdf(tmp / "render.bsdf", gm.model_table(m, n_phi_i=gm.DEFAULT_PHI_I))
+    t0 = time.perf_counter()
+    img = _render(mi, {"type": "measured", "filename": str(path)})
+    dt = time.perf_counter() - t0
+    mi.util.write_bitmap(str(out), img)
+    print(
+        f"render: {out} ({img.shape}, {dt:.1f} s), mean {img.mean():.4f}, max {img.max():.3f}, "
+        f"non-finite {int((~np.isfinite(img)).sum())}",
+        flush=True,
+    )
+    from gonio import brdf
+
+    lam = gm.write_bsdf(tmp / "lambert.bsdf", gm.model_table(brdf.create("lambert", rho=0.5)))
+    a = _render(mi, {"type": "measured", "filename": str(lam)})
+    b = _render(mi, {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}})
+    sphere = np.abs(a - b).sum(axis=-1) > 0  # (the background is the same in both)
+    ratio = float(a[sphere].mean() / b[sphere].mean())
+    print(
+        f"render: Lambertian rho 0.5 as a measured file / Mitsuba's diffuse 0.5, mean over "
+        f"the sphere's pixels: {ratio:.4f}",
+        flush=True,
+    )
+    return {"png": str(out), "seconds": round(dt, 1), "mean": float(img.mean()), "ratio": ratio}
+
+
+def _render(mi, bsdf: dict) -> np.ndarray:
     scene = mi.load_dict(
         {
             "type": "scene",
@@ -262,7 +293,7 @@ def render(out: Path, tmp: Path) -> dict:
                 "film": {"type": "hdrfilm", "width": 256, "height": 256},
                 "sampler": {"type": "independent", "sample_count": 64},
             },
-            "sphere": {"type": "sphere", "bsdf": {"type": "measured", "filename": str(path)}},
+            "sphere": {"type": "sphere", "bsdf": bsdf},
             "light": {
                 "type": "point",
                 "position": [3, -3, 4],
@@ -271,16 +302,7 @@ def render(out: Path, tmp: Path) -> dict:
             "env": {"type": "constant", "radiance": {"type": "rgb", "value": 0.15}},
         }
     )
-    t0 = time.perf_counter()
-    img = np.array(mi.render(scene))
-    dt = time.perf_counter() - t0
-    mi.util.write_bitmap(str(out), img)
-    print(
-        f"render: {out} ({img.shape}, {dt:.1f} s), mean {img.mean():.4f}, max {img.max():.3f}, "
-        f"non-finite {int((~np.isfinite(img)).sum())}",
-        flush=True,
-    )
-    return {"png": str(out), "seconds": round(dt, 1), "mean": float(img.mean())}
+    return np.array(mi.render(scene))
 
 
 def main(argv=None) -> int:
