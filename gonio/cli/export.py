@@ -160,6 +160,21 @@ def _mitsuba(args, report: dict) -> None:
     report.update(file=str(path), bytes=path.stat().st_size, shape=list(shape), **meta)
 
 
+def _unflatten(params: dict) -> dict:
+    """A fit's per-band entries ``name[k]`` (fit.json of a spectral fit) as arrays."""
+    out: dict = {}
+    bands: dict[str, dict[int, float]] = {}
+    for k, v in params.items():
+        base, sep, idx = k.partition("[")
+        if sep and idx.endswith("]") and idx[:-1].isdigit():
+            bands.setdefault(base, {})[int(idx[:-1])] = v
+        else:
+            out[k] = v
+    for base, d in bands.items():
+        out[base] = [d[i] for i in sorted(d)]
+    return out
+
+
 def _model(args):
     from gonio import brdf
 
@@ -167,7 +182,7 @@ def _model(args):
         raise ValueError("material: give either --fit fit.json or --model NAME")
     if args.fit is not None:
         d = json.loads(Path(args.fit).read_text())
-        name, params = d.get("model"), dict(d.get("params") or {})
+        name, params = d.get("model"), _unflatten(dict(d.get("params") or {}))
         if not isinstance(name, str) or "+" in name:
             raise ValueError(
                 f"--fit {args.fit}: model {name!r}; sums and lobe models are exported "

@@ -94,12 +94,17 @@ _DTYPES = {
 }
 _CODES = {np.dtype(v): k for k, v in _DTYPES.items()}
 
-#: half-vector grid (n_u × n_u nodes over the unit square) of an exported table
+#: half-vector grid (n_u × n_u nodes over the unit square) of an exported table. Measured
+#: (benchmarks/bench_mitsuba.py, Mitsuba's eval at 10,000 random pairs against the model):
+#: rolled brass's median relative error 1.05 % at 32, 0.59 % at 64, 0.46 % at 128 (4x the
+#: file: 47 MB); the diffuse clay vase 0.73 / 0.28 / 0.18 %. 64 is the smallest under 1 %.
 DEFAULT_RESOLUTION = 64
-#: incident elevations of an exported model table
+#: incident elevations of an exported model table (rolled brass at grid 64: 16 -> 32 moved
+#: the median from 0.58 to 0.52 % for twice the file)
 DEFAULT_THETA_I = 16
 #: incident azimuths of an anisotropic model table (both ends of its range: [-π, π], or
-#: [-π, -π/2] for a mirror-symmetric model)
+#: [-π, -π/2] for a mirror-symmetric model); rolled brass at grid 64: 5 -> 9 -> 17 gave a
+#: median of 1.6 -> 0.58 -> 0.32 % (6.6, 11.8, 22.3 MB)
 DEFAULT_PHI_I = 9
 #: largest incident elevation of a model table (rad): the slice at the horizon would hold a
 #: model's 0 (or its 1/sqrt(cos θi) limit) and spoil the interpolation below it

@@ -81,3 +81,28 @@ def test_export_mitsuba_errors(tmp_path, capsys):
     )
     assert "resolution" in capsys.readouterr().err
     assert not (tmp_path / "x.bsdf").exists()
+
+
+def test_export_a_spectral_fit_with_per_band_entries(tmp_path, capsys):
+    from gonio import materials
+
+    m = materials.get("garnet_red_paint")
+    flat = {}
+    for k, v in m.params.items():
+        a = np.asarray(v) if not isinstance(v, str) else None
+        if a is not None and a.dtype.kind == "f" and a.ndim == 1:
+            flat.update({f"{k}[{i}]": float(x) for i, x in enumerate(a)})  # as fit.json has
+        elif a is not None and a.dtype.kind in "fib" and a.ndim == 0:
+            flat[k] = a.item()
+        else:
+            flat[k] = v
+    fit = tmp_path / "fit.json"
+    fit.write_text(json.dumps({"model": "li_torrance", "params": flat}))
+    out = tmp_path / "g.bsdf"
+    assert main(["export", "mitsuba", "--fit", str(fit), str(out), "--grid", "16"]) == 0
+    assert "spectral measured BSDF" in capsys.readouterr().out
+    t = brdf.create("measured", filename=out)
+    np.testing.assert_array_equal(t.wavelengths_nm, m.wavelengths_nm)
+    wi = to_vector(gm.THETA_I_MAX * 5 / 15, 0.0)  # a node of θi (16 nodes by default)
+    wo = wi * [-1, -1, 1]  # the peak: the half vector at the normal, a node too
+    np.testing.assert_allclose(t(wi, wo), m(wi, wo), rtol=1e-5)
