@@ -703,11 +703,13 @@ def samples_table(
         one plane (an incidence-plane plan) cover only the nodes on that plane; the others
         take the nearest sample.
     """
+    import scipy.interpolate  # noqa: F401  (loads SciPy's OpenBLAS before it is limited)
     from threadpoolctl import threadpool_limits
 
     # Delaunay's barycentric transforms are one tiny LAPACK call per triangle: on a threaded
     # OpenBLAS each waits for its threads (6.4 s for 6774 triangles on a shared 2-core
-    # machine, 0.018 s on one thread)
+    # machine, 0.018 s on one thread). threadpoolctl limits the libraries loaded when it
+    # starts, hence the import above.
     with threadpool_limits(1, "blas"):
         return _samples_table(samples, resolution, channels, isotropic, description)
 
