@@ -238,3 +238,33 @@ def test_incidence_plane_samples_are_isotropic_and_cover_only_the_plane(tmp_path
     # in the plane the nearest samples are exact for a Lambertian surface
     qi, qo = to_vector(np.radians(15.0), 0.0), to_vector(np.radians(30.0), np.pi)
     assert float(t(qi, qo)) == pytest.approx(0.5 / np.pi, rel=0.02)
+
+
+def test_spectral_samples_as_rgb_and_as_31_bands(tmp_path):
+    from gonio.colour import spectrum_to_linear_srgb
+
+    m = materials.get("garnet_red_paint")
+    wo = to_vector(
+        *np.meshgrid(np.radians(np.linspace(0.5, 80, 30)), np.radians(np.linspace(0, 180, 25)))
+    )
+    wo = wo.reshape(-1, 3)
+    wi = np.broadcast_to(to_vector(np.radians(30.0), 0.0), wo.shape)
+    wl = m.wavelengths_nm
+    f = m(wi, wo)  # (n, 31)
+    s = BRDFSamples.from_directions(
+        np.repeat(wi, len(wl), 0),
+        np.repeat(wo, len(wl), 0),
+        f.ravel(),
+        wavelength_nm=np.tile(wl, len(wo)),
+    )
+    spec = gm.read_bsdf(gm.write_bsdf(tmp_path / "s.bsdf", gm.samples_table(s, 32)))
+    rgb = gm.read_bsdf(gm.write_bsdf(tmp_path / "r.bsdf", gm.samples_table(s, 32, channels="rgb")))
+    assert spec.kind == "spectral" and spec.shape[2] == 31 and rgb.kind == "rgb"
+    # at the measured directions both give back the samples (the grid's interpolation aside)
+    q = slice(None, None, 7)
+    a, b = spec.eval_cos(wi[q], wo[q]), rgb.eval_cos(wi[q], wo[q])
+    t = f[q] * wo[q, 2:3]
+    lit = t[:, 15] > 0.05 * t[:, 15].max()
+    assert np.median(_rel(a[lit], t[lit])) < 0.02
+    # the RGB file is the spectral one through the (linear) colour map, node for node
+    np.testing.assert_allclose(b, spectrum_to_linear_srgb(a, wl), rtol=1e-4, atol=1e-6 * b.max())
