@@ -29,7 +29,11 @@ gonio writes the simplest valid form: a **uniform** VNDF (its warp is the identi
 grid is the regular grid of u: θm = u² π/2 is dense at the surface normal where glossy lobes
 are), the Jacobian flag off, ``ndf`` and ``sigma`` uniform (unused), and a ``luminance`` for
 Mitsuba's importance sampling (the luminance of f_r cos θo times the Jacobian of the map from
-u to wo, so its samples follow the BSDF). A grey model is written as ``rgb`` with three equal
+u to wo, so its samples follow the BSDF). (A warped VNDF, half the lobe's density and half
+uniform, was measured on rolled brass at grid 64: near its peak the median error fell from
+0.46 to 0.26 %, but at random pairs it rose from 0.58 to 0.82 % and the worst below 80° from
+18 to 51 %: the slices' warps differ, and Mitsuba interpolates between slices at the same
+warped coordinate.) A grey model is written as ``rgb`` with three equal
 channels (Mitsuba's RGB variants read ``rgb``; the spectral ones ``spectra``). An extra field
 ``gonio`` (JSON text; Mitsuba ignores fields it does not read) records what the file holds
 (grey, rgb or spectral; the source; the coverage of measured samples).
