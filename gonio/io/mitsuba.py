@@ -18,7 +18,7 @@ field aligned to 8 bytes. The ``measured`` plugin (Dupuy and Jakob 2018) reads t
   ``(n_bands,)`` nm: values of f_r cos θo at the nodes of a regular grid over the warped
   square.
 
-A query (wi, wo) is evaluated (``Measured::eval``) at the half vector m = (wi + wo)/|wi + wo|:
+A query (wi, wo) is evaluated (``Measured::eval``) at the half vector m = normalize(wi + wo):
 its unit coordinates u = (sqrt(2 θm / π), (φm [- φi] + π) / 2π) are mapped through the inverse
 of the VNDF warp (a bilinear 2-D distribution per slice, :class:`Warp2D`) to a point of the
 square, where the ``rgb``/``spectra`` table is interpolated bilinearly, and linearly between
