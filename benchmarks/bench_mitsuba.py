@@ -27,6 +27,33 @@ over the pairs where the truth is above 0, and (printed beside) where it exceeds
 largest value: the Cornell garnet red paint has no diffuse floor (f_r = 0 far from its
 lobe), and at the horizon every f_r cos θo goes to 0, where a relative error has no scale.
 The samples' errors count pairs above 1e-3 of the largest value.
+
+Measured (10,000 random pairs, the default --theta-i 16 and --phi-i 9; the machine shared;
+median / worst with θi, θo <= 80° at random pairs; worst at the 1000 mirror pairs; median /
+worst near the peaks)::
+
+    material (model)            grid  file     random          peak      near peak
+    clay_vase (oren_nayar)        32   0.3 MB  0.73 / 15.8 %    2.8 %    0.16 / 10.4 %
+                                  64   1.3 MB  0.28 / 13.4 %    2.8 %    0.14 / 6.1 %
+                                 128   5.4 MB  0.18 / 13.2 %    2.8 %    0.13 / 5.5 %
+    white_ceramic_tile (ward)     32   0.3 MB  0.65 / 5.7 %     0.03 %   0.56 / 38.8 %
+                                  64   1.3 MB  0.23 / 1.8 %     0.03 %   0.15 / 23.2 %
+                                 128   5.4 MB  0.13 / 1.1 %     0.03 %   0.05 / 22.8 %
+    rolled_brass (ward, aniso.)   32   3.0 MB  1.05 / 73.8 %    0.006 %  2.06 / 67.6 %
+                                  64  11.8 MB  0.59 / 15.9 %    0.003 %  0.54 / 13.9 %
+                                 128  47.3 MB  0.46 / 5.2 %     0.002 %  0.14 / 14.6 %
+    garnet_red_paint (31 bands,   32   2.2 MB  1.01 / -         17.9 %   0.29 / 28.9 %
+      li_torrance; lit pairs)     64   8.7 MB  0.44 / -         17.9 %   0.18 / 29.7 %
+                                 128  34.7 MB  0.28 / -         17.9 %   0.20 / 43.9 %
+
+The worst at all random pairs is at the horizon (cos θo -> 0, where f_r cos θo -> 0 and the
+grid's bilinear interpolation keeps a finite value): 1.8e4 to 1.8e5 %. Samples (grid 64):
+the default LBL campaign's (rolled brass, 173,406 samples, θi 0-80° by 4°, φi 0/45/90°):
+coverage 93.9 %, median 4.71 % (the samples themselves 1.57 %; the truth at the same
+geometries 4.44 %: the measurement's geometry, not its noise, sets it); the ideal preset's:
+98.6 %, 5.14 % (0.85 %; 4.75 %); the default Cornell campaign's (an incidence-plane plan):
+3.9 % coverage and 103 % median over the hemisphere (a plane cannot fill it). Render: 11 s;
+a Lambertian file against Mitsuba's diffuse: 0.9989.
 """
 
 from __future__ import annotations
