@@ -85,11 +85,16 @@ __all__ = [
 PLANS = ("incidence", "incidence_plane", "hemispherical")
 
 
-def _write_astm(samples, path: Path) -> None:
-    """The samples as the Cornell laboratory distributes them: an ASTM E1392 table."""
+def _write_astm(samples, path: Path, lab: Any) -> None:
+    """The samples as the Cornell laboratory distributes them: an ASTM E1392 table, with
+    the solid angles the laboratory knows (its nominal configuration)."""
     from gonio.io.astm import write_astm
 
-    write_astm(samples, path, instrument="Cornell three-axis gonioreflectometer (gonio)")
+    nominal = getattr(lab, "source_solid_angle_nominal", None)
+    src = nominal or getattr(lab, "source_solid_angle", None)
+    write_astm(samples, path, instrument="Cornell three-axis gonioreflectometer (gonio)",
+               source_solid_angle_sr=src,
+               receiver_solid_angle_sr=getattr(lab, "detector_solid_angle", None))  # fmt: skip
 
 
 def _write_json(path: Path, obj: Any) -> None:
@@ -728,7 +733,7 @@ def _stages(
         if setup.out is not None:
             with ex.stage("save_samples"):
                 samples.write(setup.out / "samples.csv")
-                _write_astm(samples, setup.out / "samples.astm")
+                _write_astm(samples, setup.out / "samples.astm", setup.lab)
         # 3. fit
         if fit:
             if not quiet:
