@@ -85,18 +85,6 @@ __all__ = [
 PLANS = ("incidence", "incidence_plane", "hemispherical")
 
 
-def _write_astm(samples, path: Path, lab: Any) -> None:
-    """The samples as the Cornell laboratory distributes them: an ASTM E1392 table, with
-    the solid angles the laboratory knows (its nominal configuration)."""
-    from gonio.io.astm import write_astm
-
-    nominal = getattr(lab, "source_solid_angle_nominal", None)
-    src = nominal or getattr(lab, "source_solid_angle", None)
-    write_astm(samples, path, instrument="Cornell three-axis gonioreflectometer (gonio)",
-               source_solid_angle_sr=src,
-               receiver_solid_angle_sr=getattr(lab, "detector_solid_angle", None))  # fmt: skip
-
-
 def _write_json(path: Path, obj: Any) -> None:
     from gonio.cli._common import to_json
 
@@ -733,7 +721,9 @@ def _stages(
         if setup.out is not None:
             with ex.stage("save_samples"):
                 samples.write(setup.out / "samples.csv")
-                _write_astm(samples, setup.out / "samples.astm", setup.lab)
+                from gonio.io.astm import write_cornell_astm
+
+                write_cornell_astm(samples, setup.out / "samples.astm", setup.lab)
         # 3. fit
         if fit:
             if not quiet:
@@ -757,9 +747,7 @@ def _stages(
                 "timings_s": {k: round(v, 4) for k, v in ex.timings.items()},
                 "seed": setup.seed, "noise": setup.noise, **extra,
             }  # fmt: skip
-    summary["files"] = (
-        {"samples": "samples.csv", "astm": "samples.astm", "fit": "fit.json"} if setup.out else {}
-    )
+    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
     if setup.out is not None and summary.get("budget"):
         _draw_budget(setup, summary)
     if setup.out is not None:

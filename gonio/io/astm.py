@@ -47,7 +47,7 @@ import numpy as np
 from gonio.io.atomic import atomic_write_bytes
 from gonio.samples import BRDFSamples
 
-__all__ = ["ANGLE_DIGITS", "MAGIC", "VALUE_DIGITS", "read_astm", "write_astm"]
+__all__ = ["ANGLE_DIGITS", "MAGIC", "VALUE_DIGITS", "read_astm", "write_astm", "write_cornell_astm"]
 
 MAGIC = "ASTM E1392 BRDF"
 #: decimals of the angles (deg): 1e-6 deg, below any goniometer's resolution
@@ -161,6 +161,23 @@ def write_astm(
     rows = "\n".join(fmt % tuple(r) for r in data.tolist())
     text = "\n".join(head) + "\n" + rows + "\n"
     return atomic_write_bytes(path, text.encode())
+
+
+def write_cornell_astm(samples: BRDFSamples, path: str | os.PathLike, lab: Any) -> Path:
+    """A Cornell campaign's samples as the laboratory distributes them (``samples.astm``).
+
+    ``lab`` is the laboratory's nominal configuration (what it knows, not the true
+    instrument): its ``source_solid_angle_nominal`` (else ``source_solid_angle``) and
+    ``detector_solid_angle`` (sr) go into the header.
+    """
+    nominal = getattr(lab, "source_solid_angle_nominal", None)
+    return write_astm(
+        samples,
+        path,
+        instrument="Cornell three-axis gonioreflectometer (gonio)",
+        source_solid_angle_sr=nominal or getattr(lab, "source_solid_angle", None),
+        receiver_solid_angle_sr=getattr(lab, "detector_solid_angle", None),
+    )
 
 
 def read_astm(path: str | os.PathLike) -> BRDFSamples:
