@@ -3,8 +3,7 @@
 Columns (``docs/architecture.md``, File formats): ``theta_i, phi_i, theta_o, phi_o`` (radians),
 ``value`` (sr⁻¹), ``sigma`` (its standard error), optional ``wavelength_nm``. Files: CSV with a
 commented ``# key: json-value`` metadata header, and ``.npz`` (read with
-``allow_pickle=False``); ``.astm``: ASTM E1392 tables (:mod:`gonio.io.astm`). Writes go to a
-temporary file renamed into place, so a failure never
+``allow_pickle=False``). Writes go to a temporary file renamed into place, so a failure never
 leaves a half-written table; malformed files raise :class:`ValueError` naming the problem.
 """
 
@@ -90,7 +89,8 @@ def write_csv_parts(
 
 
 def read_samples(path: str | os.PathLike) -> BRDFSamples:
-    """Read a samples table; raise ``ValueError`` naming the file and the problem."""
+    """Read a samples table (``.csv``, ``.npz``, or an ASTM E1392 ``.astm`` table:
+    :mod:`gonio.io.astm`); raise ``ValueError`` naming the file and the problem."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"samples file {str(path)!r} does not exist")
