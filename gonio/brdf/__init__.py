@@ -12,6 +12,7 @@ from gonio.brdf import (  # noqa: F401  (importing registers the models)
     lafortune,
     lambert,
     li_torrance,
+    measured,
     neumann,
     oren_nayar,
     tabulated,

@@ -37,6 +37,7 @@ Results directory (``out``)::
     spectra/<j>.npz  raw spectra of geometry j, reduced again against the interpolated
                      references at the end (through drivers, with the drift correction)
     samples.csv      BRDF samples (31 rows per geometry, wavelength_nm column)
+    samples.astm     the same as an ASTM E1392 table, one row per geometry (gonio.io.astm)
     fit.json         the fit (FitResult.to_dict())
     summary.json     material, model, truth, fit, stderr, relative_error, rms, n_samples,
                      converged, timings_s, seed (+ fit_mode, k_summary, within_3_sigma,
@@ -721,6 +722,9 @@ def _stages(
         if setup.out is not None:
             with ex.stage("save_samples"):
                 samples.write(setup.out / "samples.csv")
+                from gonio.io.astm import write_cornell_astm
+
+                write_cornell_astm(samples, setup.out / "samples.astm", setup.lab)
         # 3. fit
         if fit:
             if not quiet:

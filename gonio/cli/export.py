@@ -9,6 +9,10 @@
   (:func:`gonio.io.radiance.model_material`), optionally ``--bsdf klems|ttree`` built from
   its ``.cal`` (:func:`gonio.io.pabopto.build_model_bsdf`).
 
+* ``gonio export mitsuba SAMPLES OUT.bsdf`` — the samples interpolated onto Mitsuba 3's
+  measured BSDF grid, their coverage printed; ``gonio export mitsuba --fit fit.json OUT.bsdf``
+  (or ``--model``) — the model tabulated on it (:mod:`gonio.io.mitsuba`).
+
 The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 """
 
@@ -20,7 +24,10 @@ from pathlib import Path
 from gonio.cli._common import add_json_option, write_json
 
 COMMAND = "export"
-HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
+HELP = (
+    "export samples or a fit to Radiance (PAB-Opto files, BSDF XML, material.rad) "
+    "or to Mitsuba 3 (measured .bsdf)"
+)
 
 
 def _vector(text: str) -> tuple[float, float, float]:
@@ -35,17 +42,22 @@ def _vector(text: str) -> tuple[float, float, float]:
 
 def add_arguments(parser) -> None:
     parser.usage = (
-        "gonio export pabopto|bsdf SAMPLES OUT [options]\n"
-        "       gonio export material OUT (--fit fit.json | --model M [--param P=V]) [options]"
+        "gonio export pabopto|bsdf|mitsuba SAMPLES OUT [options]\n"
+        "       gonio export material OUT (--fit fit.json | --model M [--param P=V]) [options]\n"
+        "       gonio export mitsuba OUT.bsdf (--fit fit.json | --model M [--param P=V]) [options]"
     )
-    parser.add_argument("what", choices=["pabopto", "bsdf", "material"], help="what to write")
+    parser.add_argument(
+        "what", choices=["pabopto", "bsdf", "material", "mitsuba"], help="what to write"
+    )
     parser.add_argument(
         "source",
         metavar="SAMPLES|OUT",
-        help="pabopto, bsdf: the samples table to export (.csv/.npz); material: the output "
-        "folder to write material.rad into",
+        help="pabopto, bsdf, mitsuba: the samples table to export (.csv/.npz/.astm); material: "
+        "the output folder to write material.rad into; mitsuba --fit/--model: OUT.bsdf",
     )
-    parser.add_argument("out", metavar="OUT", nargs="?", help="pabopto, bsdf: the output folder")
+    parser.add_argument(
+        "out", metavar="OUT", nargs="?", help="pabopto, bsdf: the output folder; mitsuba: OUT.bsdf"
+    )
     parser.add_argument("--name", default="gonio", help="sample / material name (default gonio)")
     parser.add_argument(
         "--negative",
@@ -103,7 +115,79 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--bsdf", choices=["klems", "ttree"], help="material: also build the model's BSDF XML"
     )
+    from gonio.io import mitsuba
+
+    parser.add_argument(
+        "--grid",
+        type=int,
+        default=mitsuba.DEFAULT_RESOLUTION,
+        help=f"mitsuba: half-vector grid NxN (default {mitsuba.DEFAULT_RESOLUTION})",
+    )
+    parser.add_argument(
+        "--theta-i",
+        type=int,
+        default=mitsuba.DEFAULT_THETA_I,
+        help=f"mitsuba --fit: incident elevations (default {mitsuba.DEFAULT_THETA_I})",
+    )
+    parser.add_argument(
+        "--phi-i",
+        type=int,
+        default=mitsuba.DEFAULT_PHI_I,
+        help=f"mitsuba --fit, anisotropic model: incident azimuths (default "
+        f"{mitsuba.DEFAULT_PHI_I})",
+    )
+    parser.add_argument(
+        "--channels",
+        choices=["grey", "rgb", "spectral"],
+        help="mitsuba: file channels (default grey or spectral, as the source)",
+    )
     add_json_option(parser)
+
+
+def _mitsuba(args, report: dict) -> None:
+    from gonio.io import mitsuba
+
+    if args.fit is not None or args.model is not None:
+        out = args.out or args.source
+        if args.out is not None and args.source != args.out:
+            raise ValueError("mitsuba --fit: give only OUT.bsdf")
+        model = _model(args)
+        iso = mitsuba.is_isotropic(model)
+        fields = mitsuba.model_table(
+            model, args.grid, args.theta_i, None if iso else args.phi_i, args.channels
+        )
+    else:
+        from gonio.io.samples_table import read_samples
+
+        if args.out is None:
+            raise ValueError("mitsuba: give OUT.bsdf after the samples table")
+        out = args.out
+        fields = mitsuba.samples_table(read_samples(args.source), args.grid, args.channels)
+    path = mitsuba.write_bsdf(out, fields)
+    meta = mitsuba.coverage_summary(fields)
+    shape = fields["rgb" if "rgb" in fields else "spectra"].shape
+    line = f"{meta['channels']} measured BSDF {path} ({path.stat().st_size} bytes, table {shape})"
+    if "coverage" in meta:
+        line += f"; samples cover {100 * meta['coverage']:.1f} % of the grid above the horizon"
+        if meta.get("isotropic_assumed"):
+            line += " (isotropic assumed: the incident directions are not on a θi × φi grid)"
+    print(line)
+    report.update(file=str(path), bytes=path.stat().st_size, shape=list(shape), **meta)
+
+
+def _unflatten(params: dict) -> dict:
+    """A fit's per-band entries ``name[k]`` (fit.json of a spectral fit) as arrays."""
+    out: dict = {}
+    bands: dict[str, dict[int, float]] = {}
+    for k, v in params.items():
+        base, sep, idx = k.partition("[")
+        if sep and idx.endswith("]") and idx[:-1].isdigit():
+            bands.setdefault(base, {})[int(idx[:-1])] = v
+        else:
+            out[k] = v
+    for base, d in bands.items():
+        out[base] = [d[i] for i in sorted(d)]
+    return out
 
 
 def _model(args):
@@ -113,7 +197,7 @@ def _model(args):
         raise ValueError("material: give either --fit fit.json or --model NAME")
     if args.fit is not None:
         d = json.loads(Path(args.fit).read_text())
-        name, params = d.get("model"), dict(d.get("params") or {})
+        name, params = d.get("model"), _unflatten(dict(d.get("params") or {}))
         if not isinstance(name, str) or "+" in name:
             raise ValueError(
                 f"--fit {args.fit}: model {name!r}; sums and lobe models are exported "
@@ -144,7 +228,9 @@ def _run(args) -> int:
 
     up = _vector(args.up)
     report: dict = {"what": args.what}
-    if args.what == "material":
+    if args.what == "mitsuba":
+        _mitsuba(args, report)
+    elif args.what == "material":
         from gonio.io import radiance
 
         out = Path(args.source)

@@ -9,7 +9,7 @@ HELP = "fit a BRDF model (or a sum 'lambert + ward') to a samples file"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("samples", help="samples table (.csv or .npz)")
+    parser.add_argument("samples", help="samples table (.csv, .npz or an ASTM E1392 .astm)")
     parser.add_argument(
         "--model", default="ward", help="model name or sum, e.g. 'lambert + ward' (default ward)"
     )

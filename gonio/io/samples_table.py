@@ -50,7 +50,13 @@ def write_samples(samples: BRDFSamples, path: str | os.PathLike) -> Path:
         arrays = {c: getattr(samples, c) for c in samples.columns}
         np.savez(buf, **arrays, metadata=np.array(json.dumps(samples.metadata)))
         return atomic_write_bytes(path, buf.getvalue())
-    raise ValueError(f"unsupported samples file suffix {path.suffix!r}; expected .csv or .npz")
+    if suffix == ".astm":
+        from gonio.io.astm import write_astm
+
+        return write_astm(samples, path)
+    raise ValueError(
+        f"unsupported samples file suffix {path.suffix!r}; expected .csv, .npz or .astm"
+    )
 
 
 def csv_rows(samples: BRDFSamples) -> str:
@@ -100,7 +106,8 @@ def write_csv_parts(
 
 
 def read_samples(path: str | os.PathLike) -> BRDFSamples:
-    """Read a samples table; raise ``ValueError`` naming the file and the problem."""
+    """Read a samples table (``.csv``, ``.npz``, or an ASTM E1392 ``.astm`` table:
+    :mod:`gonio.io.astm`); raise ``ValueError`` naming the file and the problem."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"samples file {str(path)!r} does not exist")
@@ -112,7 +119,13 @@ def read_samples(path: str | os.PathLike) -> BRDFSamples:
             return _read_npz(path)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
-    raise ValueError(f"unsupported samples file suffix {path.suffix!r}; expected .csv or .npz")
+    if suffix == ".astm":  # (its errors name the file)
+        from gonio.io.astm import read_astm
+
+        return read_astm(path)
+    raise ValueError(
+        f"unsupported samples file suffix {path.suffix!r}; expected .csv, .npz or .astm"
+    )
 
 
 def _read_csv(path: Path) -> BRDFSamples:
