@@ -201,13 +201,20 @@ _COUNT_EFFECTS = ("stray_light_fraction", "slit_fwhm_nm", "sample_polarisation",
 
 
 def _predicted_readings(
-    model: Any, plan: Any, lab: Any, knowledge: dict, reference: str = "standard"
-):
-    """The prior's readings on the noise-free simulated instrument as the laboratory knows it
+    model: Any, plan: Any, lab: Any, knowledge: dict, reference: str = "standard",
+    order: str = "campaign",
+):  # fmt: skip
+    """The prior's readings on the simulated instrument as the laboratory knows it
     (nominal configuration; the effects that change the counts at their nominal magnitudes,
     :data:`_COUNT_EFFECTS`, and the stray-light correction the campaign applies): values,
     the detector's standard errors at the auto-exposure's integration times, the
-    integration times, and the reference."""
+    integration times, and the reference.
+
+    The auto-exposure previews through the polariser the campaign puts first at that
+    geometry (alternating with its index): ``order="campaign"`` reads the plan as the
+    campaign will measure it; ``"worst"`` reads every geometry both ways and keeps the
+    larger standard errors (and longer time) — a candidate's place in the plan is not
+    known yet."""
     from gonio.simulator.cornell import (
         BANDS_NM,
         CornellInstrument,
@@ -216,24 +223,31 @@ def _predicted_readings(
         forward,
         reduce_measurement,
     )
-
     from gonio.simulator.cornell_effects import EFFECTS
 
     fx = {k: float(knowledge[k][0]) for k in _COUNT_EFFECTS if knowledge.get(k, (0, 0))[0]}
     cfg = dataclasses.replace(lab, effects={**dict.fromkeys(EFFECTS, 0.0), **fx}) if fx else lab
     stray = float(knowledge.get("stray_light_fraction", (0.0, 0.0))[0])
-    inst = CornellInstrument(model, config=cfg, noise=False, rng=0)
+    # with the detector's noise on (a fixed seed): the auto-exposure reads the peak of a noisy
+    # preview, so its integration times (and the standard errors) are the noisy instrument's
+    # (the noise-free preview's give up to 2x longer times at a dark sample)
+    inst = CornellInstrument(model, config=cfg, noise=True, rng=0)
     ref = inst.calibrate(reference)
     inst.prime(plan.angles)
     wi, _ = forward(plan.angles, lab.kinematics)
     ce = effective_cos(wi, lab)
-    g = len(plan)
-    vals, sig, t = np.empty((g, len(BANDS_NM))), np.empty((g, len(BANDS_NM))), np.empty(g)
+    g, nb = len(plan), len(BANDS_NM)
+    vals, sig, t = np.empty((g, nb)), np.zeros((g, nb)), np.zeros(g)
     for j, ang in enumerate(plan.angles):
         inst.move_to(ang)
-        raws = inst.measure_raw("sample", first=first_polarizer(j))
-        t[j] = raws["s"]["t"]
-        vals[j], sig[j], _ = reduce_measurement(raws, ref, float(ce[j]), lab, BANDS_NM, stray)
+        firsts = (first_polarizer(j),) if order == "campaign" else ("s", "p")
+        for q in firsts:
+            raws = inst.measure_raw("sample", first=q)
+            v, sj, _ = reduce_measurement(raws, ref, float(ce[j]), lab, BANDS_NM, stray)
+            vals[j] = v
+            if np.sum(sj) > np.sum(sig[j]):
+                sig[j] = sj
+            t[j] = max(t[j], raws["s"]["t"])
     return vals, sig, t, ref
 
 
@@ -292,7 +306,7 @@ def cornell_candidates(
     plan = _candidate_plan(lab, knowledge, n_grid, tuple(theta_i_deg))
     nb = len(BANDS_NM)
     models = [type(truth)(**{**truth.params, **pt}) for pt in pts]
-    vals, sig, t_int, ref = _predicted_readings(models[0], plan, lab, knowledge)
+    vals, sig, t_int, ref = _predicted_readings(models[0], plan, lab, knowledge, order="worst")
     ok = np.all(np.isfinite(sig) & (sig > 0), axis=1)
     if not ok.all():
         plan, vals, sig, t_int = plan.subset(np.flatnonzero(ok)), vals[ok], sig[ok], t_int[ok]
@@ -406,27 +420,32 @@ class _State:
         out = np.empty((len(cand), self.P))
         ck = cinv[self.idx]  # (nk, nb, P)
         cbk = cb[self.idx]  # (nk, nb, E)
+        ns, nk, nb, P = self.ns, self.nk, self.nb, self.P
         for s in range(0, len(cand), chunk):
             sel = cand[s : s + chunk]
+            g = len(sel)
             lt, lk, u = self.rows(sel)  # (g, nb, ns), (g, nb, nk), (E, g, nb)
-            # M = L C  (g, nb, P)
-            m = np.einsum("gbs,sp->gbp", lt, cinv[: self.ns]) + np.einsum("gbi,ibp->gbp", lk, ck)
+            # M = L C (g, nb, P): the shape columns and each band's own k columns
+            m = lt @ cinv[:ns]
+            for i in range(nk):
+                m += lk[:, :, i, None] * ck[i][None]
             # K = I + M Lᵀ (g, nb, nb)
-            mk = m[:, :, self.ns :].reshape(len(sel), self.nb, self.nk, self.nb)
-            k = np.einsum("gbs,gcs->gbc", m[:, :, : self.ns], lt) + np.einsum(
-                "gbic,gci->gbc", mk, lk
-            )
-            k += np.eye(self.nb)[None]
-            # M B (g, nb, E) and (K - I) u
-            mb = np.einsum("gbs,se->gbe", lt, cb[: self.ns]) + np.einsum("gbi,ibe->gbe", lk, cbk)
+            k = m[:, :, :ns] @ np.swapaxes(lt, 1, 2)
+            mk = m[:, :, ns:].reshape(g, nb, nk, nb)
+            for i in range(nk):
+                k += mk[:, :, i, :] * lk[:, None, :, i]
+            k += np.eye(nb)[None]
+            # M B (g, nb, E) and the new patterns' share (K - I) u
             ue = np.moveaxis(u, 0, 2)  # (g, nb, E)
-            v = mb + np.einsum("gbc,gce->gbe", k, ue) - ue
-            rhs = np.concatenate([m, v], axis=2)
-            sol = np.linalg.solve(k, rhs)
-            x, z = sol[:, :, : self.P], sol[:, :, self.P :]
-            diag = base[None, :] - np.einsum("gbp,gbp->gp", m, x)
-            sysn = cb[None] + np.einsum("gbp,gbe->gpe", m, ue - z)
-            out[s : s + len(sel)] = diag + np.sum(sysn * sysn, axis=2)
+            mb = lt @ cb[:ns]
+            for i in range(nk):
+                mb += lk[:, :, i, None] * cbk[i][None]
+            v = mb + k @ ue - ue
+            sol = np.linalg.solve(k, np.concatenate([m, v], axis=2))
+            x, z = sol[:, :, :P], sol[:, :, P:]
+            diag = base[None, :] - np.sum(m * x, axis=1)
+            sysn = cb[None] + np.swapaxes(m, 1, 2) @ (ue - z)
+            out[s : s + g] = diag + np.sum(sysn * sysn, axis=2)
         return out
 
 
@@ -557,11 +576,15 @@ def design_cornell(
     time_limit_h: float | None = None,
     n_grid: int = 13,
     max_steps: int = 400,
+    margin: float = 0.1,
+    refine: int = 3,
     candidates: _Candidates | None = None,
 ) -> DesignResult:
     """Design a Cornell plan (module docstring). ``targets`` from :func:`parse_targets`
     (default every parameter at 5 %), ``prior`` from :func:`parse_prior`, ``time_limit_h``
-    the most real-instrument time the plan may take. Raises :class:`DesignError` for a
+    the most real-instrument time the plan may take; the search aims at ``(1 - margin)``
+    times each target (the achieved U scatters about the prediction with the data's noise)
+    and tightens the targets the ordered plan's full budget misses, ``refine`` times. Raises :class:`DesignError` for a
     target that is not a fitted parameter, a prior outside the model's bounds or a time
     limit no plan can meet."""
     import time
@@ -597,10 +620,43 @@ def design_cornell(
                       for p in c.names])  # fmt: skip
     ridge = 1.0 / (100.0 * np.maximum(scale, 1e-3)) ** 2
     states = [_State(c, j, ridge) for j in range(len(c.prior_points))]
-    G = len(c.plan)
-    chosen = np.zeros(G, bool)
-    spent = 0.0
+    chosen = np.zeros(len(c.plan), bool)
     limit_s = math.inf if time_limit_h is None else time_limit_h * 3600.0
+    t2 *= (1.0 - margin) ** 2  # aim below the target: the achieved U scatters about the prediction
+    for _round in range(refine + 1):
+        phi = _greedy(states, chosen, c, t2, limit_s, max_steps)
+        if phi > 0 and not chosen.any():
+            raise DesignError("no candidate geometry reduces the uncertainty of the targets")
+        _prune(states, chosen, c, t2)
+        result = _finish(c, np.flatnonzero(chosen), tabs, unreachable, material)
+        # the budget of the ordered plan has terms the search approximates (the backlash's
+        # sides, the stages' noise, the exposure of the polariser put first): tighten the
+        # search's targets of the parameters it missed and continue from the plan
+        missed = [i for i, p in enumerate(c.names) if p in tabs and p not in unreachable
+                  and result.predicted[p]["U"] > tabs[p]]  # fmt: skip
+        if not missed or phi > 0:
+            break
+        for i in missed:
+            p = c.names[i]
+            t2[i] *= (tabs[p] / result.predicted[p]["U"]) ** 2 * (1.0 - margin) ** 2
+    result.design_s = time.perf_counter() - t0
+    result.meta["objective_left"] = float(phi)
+    result.meta["rounds"] = _round + 1
+    if time_limit_h is not None and result.hours > time_limit_h:
+        raise DesignError(
+            f"time limit {time_limit_h} h: the designed plan takes {result.hours:.3g} h once "
+            "ordered; no plan within the limit was found"
+        )
+    return result
+
+
+def _greedy(
+    states: list[_State], chosen: NDArray, c: _Candidates, t2: NDArray, limit_s: float,
+    max_steps: int,
+) -> float:  # fmt: skip
+    """Forward selection (module docstring) from ``chosen`` (updated in place); returns the
+    objective left (0: every reachable target met at every prior point)."""
+    spent = float(c.seconds[chosen].sum())
     phi = sum(_objective(s.u2(), c.const, t2) for s in states)
     for _ in range(max_steps):
         if phi <= 0:
@@ -610,8 +666,7 @@ def design_cornell(
             break
         new = sum(_objective(s.u2_with(cand), c.const, t2) for s in states)
         gain = (phi - new) / c.seconds[cand]
-        n_add = max(1, int(chosen.sum()) // 8)
-        order = np.argsort(-gain)[:n_add]
+        order = np.argsort(-gain)[: max(1, int(chosen.sum()) // 8)]
         order = order[gain[order] > 0]
         if order.size == 0:
             break
@@ -625,19 +680,7 @@ def design_cornell(
         for s in states:
             s.add(add)
         phi = sum(_objective(s.u2(), c.const, t2) for s in states)
-    if phi > 0 and not chosen.any():
-        raise DesignError("no candidate geometry reduces the uncertainty of the targets")
-    _prune(states, chosen, c, t2)
-    sel = np.flatnonzero(chosen)
-    result = _finish(c, sel, tabs, unreachable, material)
-    result.design_s = time.perf_counter() - t0
-    result.meta["objective_left"] = float(phi)
-    if time_limit_h is not None and result.hours > time_limit_h:
-        raise DesignError(
-            f"time limit {time_limit_h} h: the designed plan takes {result.hours:.3g} h once "
-            "ordered; no plan within the limit was found"
-        )
-    return result
+    return float(phi)
 
 
 def _prune(states: list[_State], chosen: NDArray, c: _Candidates, t2: NDArray) -> None:
@@ -661,34 +704,35 @@ def _prune(states: list[_State], chosen: NDArray, c: _Candidates, t2: NDArray) -
 
 
 # ----------------------------------------------------------------------------- prediction
-def predict_cornell(c: _Candidates, sel: NDArray, point: int = 0) -> dict[str, dict[str, Any]]:
-    """The budget (:func:`gonio.campaign.cornell_budget.cornell_budget`) of the plan ``sel``
-    (candidate indices, in measuring order) at prior point ``point``, on the prior's
-    predicted readings: per parameter ``U``, ``stat``, the contributions."""
+def predict_cornell(c: _Candidates, plan: Any, point: int = 0) -> tuple[dict, float]:
+    """The budget (:func:`gonio.campaign.cornell_budget.cornell_budget`) of ``plan`` (a
+    Plan in measuring order) at prior point ``point``, on the prior's readings predicted in
+    that order: per parameter ``U``, ``stat``, the contributions; and the plan's estimated
+    real-instrument hours."""
     import types
 
+    from gonio.campaign import cornell_budget as cb
     from gonio.campaign.cornell import offset_sensitivity, reference_band_error, stray_offset_error
-    from gonio.campaign.cornell_budget import cornell_budget
     from gonio.samples import BRDFSamples
     from gonio.simulator.cornell import BANDS_NM, forward
     from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
     nb = len(BANDS_NM)
     model = type(c.model)(**{**c.model.params, **c.prior_points[point]})
-    plan = c.plan.subset(sel)
+    vals, sig, t_int, ref = _predicted_readings(model, plan, c.lab, c.knowledge)
+    hours = float(estimate_run_time(plan, Timing(), t_int)["total_h"])
     wi, wo = forward(plan.angles, c.lab.kinematics)
-    g = len(sel)
+    g = len(plan)
     samples = BRDFSamples.from_directions(
-        np.repeat(wi, nb, axis=0), np.repeat(wo, nb, axis=0),
-        c.values[sel].reshape(-1), c.sigma[sel].reshape(-1),
-        wavelength_nm=np.tile(BANDS_NM, g),
+        np.repeat(wi, nb, axis=0), np.repeat(wo, nb, axis=0), vals.reshape(-1),
+        sig.reshape(-1), wavelength_nm=np.tile(BANDS_NM, g),
     )  # fmt: skip
-    st = _State(c, point, np.zeros(len(c.names)))
-    st.add(np.asarray(sel))
-    if np.linalg.matrix_rank(st.F) < st.P:
-        return {p: {"U": math.inf, "stat": math.inf, "contributions": {}} for p in c.names}
-    cov = np.linalg.inv(st.F)
-    se = np.sqrt(np.diag(cov))
+    jac = cb._jacobian(model, c.names, wi, wo, nb) / sig.reshape(-1, 1)
+    f = jac.T @ jac
+    if np.linalg.matrix_rank(f) < len(c.names):
+        inf = {"U": math.inf, "stat": math.inf, "combined": math.inf, "contributions": {}}
+        return {p: dict(inf) for p in c.names}, hours
+    se = np.sqrt(np.diag(np.linalg.inv(f)))
     params = {p: float(model.params[p]) for p in c.names if "[" not in p}
     for k in c.free_k:
         arr = np.broadcast_to(np.asarray(model.params[k], float), (nb,))
@@ -696,8 +740,8 @@ def predict_cornell(c: _Candidates, sel: NDArray, point: int = 0) -> dict[str, d
     stderr = dict(zip(c.names, map(float, se)))
     res = types.SimpleNamespace(model=model, free=list(c.names), stderr=stderr, params=params,
                                 cov_scale=1.0)  # fmt: skip
-    ref_rel = reference_band_error(c.ref, c.lab)
-    sd = stray_offset_error(c.ref, c.lab)
+    ref_rel = reference_band_error(ref, c.lab)
+    sd = stray_offset_error(ref, c.lab)
     sens = offset_sensitivity(model, samples, c.free_k, c.lab)
     tot = {}
     for p in c.names:
@@ -706,12 +750,11 @@ def predict_cornell(c: _Candidates, sel: NDArray, point: int = 0) -> dict[str, d
             tot[p] = math.hypot(stderr[p], abs(params[p]) * ref_rel[b], abs(sens[k][b]) * sd[b])
         else:
             tot[p] = stderr[p]
-    hours = estimate_run_time(plan, Timing(), c.t_int[sel])["total_h"]
     summary = {"reference_band_rel_error": list(map(float, ref_rel)),
                "stderr_with_reference": tot, "estimated_real_instrument_h": hours}  # fmt: skip
-    b = cornell_budget(res, {"mirror_part": False}, samples, c.ref, c.lab, c.knowledge,
-                       c.corrections, summary, angles=plan.angles)  # fmt: skip
-    return b["parameters"]
+    b = cb.cornell_budget(res, {"mirror_part": False}, samples, ref, c.lab, c.knowledge,
+                          c.corrections, summary, angles=plan.angles)  # fmt: skip
+    return b["parameters"], hours
 
 
 def _dominant(entry: dict[str, Any]) -> str:
@@ -722,16 +765,12 @@ def _dominant(entry: dict[str, Any]) -> str:
 def _finish(c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, material: str):
     """Order the selection as the campaign will, predict its budget at every prior point
     (the worst case kept), and the default plan's beside it."""
-    from gonio.simulator.cornell_plans import Timing, estimate_run_time, order_plan
+    from gonio.simulator.cornell_plans import order_plan
 
     sub = c.plan.subset(sel)
     sub.meta = {"kind": "designed"}
     ordered = order_plan(sub)
-    # indices of the ordered rows in the candidate list
-    key = {tuple(np.round(a, 9)): i for i, a in zip(sel, c.plan.angles[sel])}
-    osel = np.array([key[tuple(np.round(a, 9))] for a in ordered.angles])
-    pred = _worst_prediction(c, osel)
-    hours = estimate_run_time(ordered, Timing(), c.t_int[osel])["total_h"]
+    pred, hours = _worst_prediction(c, ordered)
     for p, t in tabs.items():
         pred[p]["target"] = t
     default = _default_prediction(c)
@@ -740,39 +779,43 @@ def _finish(c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, materia
                                            "prior_points": c.prior_points})  # fmt: skip
 
 
-def _worst_prediction(c: _Candidates, osel: NDArray) -> dict[str, dict[str, Any]]:
+def _worst_prediction(c: _Candidates, plan: Any) -> tuple[dict[str, dict[str, Any]], float]:
+    """The plan's budget at every prior point, each parameter's worst case; the hours
+    (the longest)."""
     out: dict[str, dict[str, Any]] = {}
+    hours = 0.0
     for j in range(len(c.prior_points)):
-        pj = predict_cornell(c, osel, j)
+        pj, hj = predict_cornell(c, plan, j)
+        hours = max(hours, hj)
         for p, e in pj.items():
             if p not in out or e["U"] > out[p]["U"]:
                 out[p] = e
     for i, p in enumerate(c.names):
         e = out[p]
-        sys2 = e["combined"] ** 2 - e["stat"] ** 2 if "combined" in e else 0.0
-        e["floor"] = 2.0 * math.sqrt(max(c.const[i] ** 2, 0.0))
+        sys2 = e["combined"] ** 2 - e["stat"] ** 2 if math.isfinite(e["combined"]) else math.inf
+        e["floor"] = 2.0 * float(c.const[i])
         e["systematic_U"] = 2.0 * math.sqrt(max(sys2, 0.0))
         e["dominant"] = _dominant(e)
-    return {p: {k: v for k, v in e.items() if k in ("U", "stat", "combined", "floor",
-                "systematic_U", "dominant", "contributions")} for p, e in out.items()}  # fmt: skip
+    keep = ("U", "stat", "combined", "floor", "systematic_U", "dominant", "contributions")
+    return {p: {k: v for k, v in e.items() if k in keep} for p, e in out.items()}, hours
+
+
+def default_cornell_plan(lab: Any, knowledge: dict) -> Any:
+    """The default campaign's plan (incidence plane, ordered, footprint refusals removed)."""
+    from gonio.campaign.cornell import _refuse_footprint, build_plan
+
+    p = build_plan("incidence", config=lab)
+    if knowledge:
+        p, _ = _refuse_footprint(p, lab, knowledge)
+    return p
 
 
 def _default_prediction(c: _Candidates) -> dict[str, Any]:
-    """The default incidence-plane plan's predicted U and hours (its geometries are among
-    the candidates)."""
-    from gonio.campaign.cornell import _refuse_footprint, build_plan
-    from gonio.simulator.cornell_plans import Timing, estimate_run_time
-
-    p = build_plan("incidence", config=c.lab)
-    if c.knowledge:
-        p, _ = _refuse_footprint(p, c.lab, c.knowledge)
-    key = {tuple(np.round(np.degrees(a), 6)): i for i, a in enumerate(c.plan.angles)}
-    idx = [key.get(tuple(np.round(np.degrees(a), 6))) for a in p.angles]
-    idx = np.array([i for i in idx if i is not None], int)
-    pred = _worst_prediction(c, idx)
-    hours = estimate_run_time(c.plan.subset(idx), Timing(), c.t_int[idx])["total_h"]
-    return {"n": len(idx), "hours": float(hours),
-            "predicted": {p: {"U": e["U"]} for p, e in pred.items()}}  # fmt: skip
+    """The default incidence-plane plan's predicted U and hours."""
+    p = default_cornell_plan(c.lab, c.knowledge)
+    pred, hours = _worst_prediction(c, p)
+    return {"n": len(p), "hours": float(hours),
+            "predicted": {q: {"U": e["U"]} for q, e in pred.items()}}  # fmt: skip
 
 
 def write_cornell_plan(path: Any, result: DesignResult) -> None:
