@@ -28,7 +28,7 @@ campaign's summary reports, up to the noise of the measured data.
 
 Search: greedy forward selection on the candidate geometries (an exchange-free Fedorov-type
 algorithm for a c-/A-optimal criterion with a hinge at the targets): at each step the
-candidates that most reduce ``Φ = Σ_p max(0, U_p² / T_p² − 1)`` (summed over the prior's
+candidates that most reduce ``Φ = Σ_p max(0, log(U_p² / T_p²))`` (summed over the prior's
 points, so the worst case counts) per second of instrument time are added (rank-31 Woodbury
 updates of ``F⁻¹`` that use the Jacobian's block structure: each band's row sees only that
 band's coefficients and the shared shape parameters), until every reachable target is met or
@@ -274,6 +274,34 @@ def _split_jacobian(jac: NDArray, g: int, nb: int, n_shape: int, nk: int):
     return jt, jk
 
 
+def _fitted(material: str, prior: dict | None) -> tuple[Any, list[str], list[str], str, list]:
+    """The prior's model and what the campaign's fit frees (cheap: no simulation):
+    ``(truth, names, free_k, fit_mode, prior points)``."""
+    from gonio import materials
+    from gonio.campaign.cornell import _truth_and_template
+
+    materials.info(material)  # unknown preset -> ValueError listing them
+    truth, _template, fixed, mode, free_k, mirror = _truth_and_template(material, "auto")
+    if mirror:
+        raise DesignError(
+            f"material {material!r} has a mirror part; the design covers the rough li_torrance "
+            "samples (no coherent reflection) for now"
+        )
+    shape = [k for k in ("sigma", "tau") if k not in fixed]
+    names = shape + [f"{k}[{b}]" for k in free_k for b in range(31)]
+    return truth, names, free_k, mode, _prior_points(truth, shape, prior or {})
+
+
+def _check_target_names(targets: dict, names: list[str], model: str) -> None:
+    valid = set(names) | {p.split("[")[0] for p in names} | {"all"}
+    for name in targets:
+        if name not in valid:
+            raise DesignError(
+                f"target {name!r} is not a fitted parameter of {model} here; expected one of "
+                f"{sorted({p.split('[')[0] for p in names})}, NAME[band] or all"
+            )
+
+
 def cornell_candidates(
     material: str = "garnet_red_paint",
     *,
@@ -285,21 +313,13 @@ def cornell_candidates(
 ) -> _Candidates:
     """The candidate geometries of the Cornell instrument with their predicted readings,
     noise, time, Jacobians and systematic patterns (module docstring)."""
-    from gonio import materials
     from gonio.campaign import cornell_budget as cb
-    from gonio.campaign.cornell import _check_corrections, _truth_and_template, reference_band_error
+    from gonio.campaign.cornell import _check_corrections, reference_band_error
     from gonio.simulator.cornell import BANDS_NM, CornellConfig, effective_cos, forward
     from gonio.simulator.cornell_effects import lab_knowledge
 
-    materials.info(material)  # unknown preset -> ValueError listing them
-    truth, _template, fixed, mode, free_k, mirror = _truth_and_template(material, "auto")
-    if mirror:
-        raise DesignError(
-            f"material {material!r} has a mirror part; the design covers the rough li_torrance "
-            "samples (no coherent reflection) for now"
-        )
-    shape = [k for k in ("sigma", "tau") if k not in fixed]
-    pts = _prior_points(truth, shape, prior or {})
+    truth, names, free_k, mode, pts = _fitted(material, prior)
+    shape = names[: len(names) - 31 * len(free_k)]
     lab = CornellConfig().lab_view()
     knowledge = lab_knowledge(preset) if preset not in (None, "ideal") else {}
     corr = _check_corrections(corrections)
@@ -310,7 +330,6 @@ def cornell_candidates(
     ok = np.all(np.isfinite(sig) & (sig > 0), axis=1)
     if not ok.all():
         plan, vals, sig, t_int = plan.subset(np.flatnonzero(ok)), vals[ok], sig[ok], t_int[ok]
-    names = shape + [f"{k}[{b}]" for k in free_k for b in range(nb)]
     g = len(plan)
     wi, wo = forward(plan.angles, lab.kinematics)
     from gonio.simulator.cornell import _hat_projector
@@ -351,8 +370,7 @@ def cornell_candidates(
         for k in free_k for b in range(nb)
     ])  # fmt: skip
     const_terms = {
-        "reference_noise": np.abs(kval)
-        * np.r_[np.zeros(len(shape)), np.tile(ref_rel, len(free_k))]
+        "reference_noise": np.abs(kval) * np.r_[np.zeros(len(shape)), np.tile(ref_rel, len(free_k))]
     }
     const = np.sqrt(sum(v**2 for v in const_terms.values()))
     info = {"fit_mode": mode, "free_k": free_k, "mirror_part": False, "truth": truth}
@@ -450,10 +468,13 @@ class _State:
 
 
 def _objective(u2: NDArray, const: NDArray, t2: NDArray) -> NDArray:
-    """Σ_p max(0, U_p² / T_p² − 1) with U = 2 √(u² + floor²); parameters without a
-    reachable target have T = ∞. Works on (..., P)."""
+    """Σ_p max(0, log(U_p² / T_p²)) with U = 2 √(u² + floor²); parameters without a
+    reachable target have T = ∞. Logarithmic, so that a target far out of reach does not
+    outweigh the others (halving any parameter's excess counts the same). Works on
+    (..., P)."""
     u_exp2 = 4.0 * (u2 + const**2)
-    return np.sum(np.maximum(0.0, u_exp2 / t2 - 1.0), axis=-1)
+    with np.errstate(divide="ignore"):
+        return np.sum(np.maximum(0.0, np.log(np.maximum(u_exp2, 1e-300) / t2)), axis=-1)
 
 
 @dataclasses.dataclass
@@ -486,7 +507,7 @@ class DesignResult:
                         if p in self.targets else 0.0)  # fmt: skip
             d = self.predicted[worst]
             rel = "[" in worst
-            label = f"{fam} (worst {worst[len(fam):]})" if rel else fam
+            label = f"{fam} (worst {worst[len(fam) :]})" if rel else fam
             tgt = self.targets.get(worst)
             dv = self.default["predicted"].get(worst, {}).get("U", float("nan"))
 
@@ -532,20 +553,12 @@ def _families(pred: dict) -> dict[str, list[str]]:
     return fam
 
 
-def _absolute_targets(
-    targets: dict[str, tuple[float, bool]], c: _Candidates
-) -> dict[str, float]:
+def _absolute_targets(targets: dict[str, tuple[float, bool]], c: _Candidates) -> dict[str, float]:
     """Per fitted parameter, the absolute target U. A relative target of a per-band
     coefficient whose prior value is 0 is taken relative to its family's median |k|."""
     truth = c.info["truth"].params
     out: dict[str, float] = {}
-    valid = set(c.names) | {p.split("[")[0] for p in c.names} | {"all"}
-    for name, (v, rel) in targets.items():
-        if name not in valid:
-            raise DesignError(
-                f"target {name!r} is not a fitted parameter of {c.info['truth'].name} here; "
-                f"expected one of {sorted({p.split('[')[0] for p in c.names})}, NAME[band] or all"
-            )
+    _check_target_names(targets, c.names, c.info["truth"].name)
     for p in c.names:
         fam = p.split("[")[0]
         spec = targets.get(p) or targets.get(fam) or targets.get("all")
@@ -584,15 +597,18 @@ def design_cornell(
     (default every parameter at 5 %), ``prior`` from :func:`parse_prior`, ``time_limit_h``
     the most real-instrument time the plan may take; the search aims at ``(1 - margin)``
     times each target (the achieved U scatters about the prediction with the data's noise)
-    and tightens the targets the ordered plan's full budget misses, ``refine`` times. Raises :class:`DesignError` for a
-    target that is not a fitted parameter, a prior outside the model's bounds or a time
-    limit no plan can meet."""
+    and tightens the targets the ordered plan's full budget misses, ``refine`` times.
+    Raises :class:`DesignError` for a target that is not a fitted parameter, a prior outside
+    the model's bounds or a time limit no plan can meet."""
     import time
 
     t0 = time.perf_counter()
     if time_limit_h is not None and not (math.isfinite(time_limit_h) and time_limit_h > 0):
         raise DesignError(f"time limit {time_limit_h!r} h: expected a positive number of hours")
     tg = parse_targets(None) if targets is None else targets
+    if candidates is None:  # the cheap checks before the instrument's simulation
+        truth, names, *_ = _fitted(material, prior)
+        _check_target_names(tg, names, truth.name)
     c = candidates or cornell_candidates(material, preset=preset, prior=prior, n_grid=n_grid)
     tabs = _absolute_targets(tg, c)
     P = len(c.names)
@@ -634,7 +650,7 @@ def design_cornell(
         # search's targets of the parameters it missed and continue from the plan
         missed = [i for i, p in enumerate(c.names) if p in tabs and p not in unreachable
                   and result.predicted[p]["U"] > tabs[p]]  # fmt: skip
-        if not missed or phi > 0:
+        if not missed or _round == refine:
             break
         for i in missed:
             p = c.names[i]
@@ -642,6 +658,7 @@ def design_cornell(
     result.design_s = time.perf_counter() - t0
     result.meta["objective_left"] = float(phi)
     result.meta["rounds"] = _round + 1
+    result.meta["not_met"] = [c.names[i] for i in missed]
     if time_limit_h is not None and result.hours > time_limit_h:
         raise DesignError(
             f"time limit {time_limit_h} h: the designed plan takes {result.hours:.3g} h once "
