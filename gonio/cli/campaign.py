@@ -52,7 +52,8 @@ def _plan_options(group) -> None:
         "--plan",
         default=None,
         help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
-        "(deg)",
+        "(deg); lbl: a JSON plan file (theta_i_deg, rotations_deg, restandard_every; as gonio "
+        "design writes it)",
     )
     group.add_argument(
         "--through-drivers",
@@ -220,7 +221,7 @@ _LBL_ONLY = {
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
 }
-_CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
+_CORNELL_ONLY = {"--through-drivers": ("through_drivers", False)}
 
 
 def _refuse_other_instrument(args) -> None:
@@ -304,6 +305,17 @@ def run(args) -> int:
         kw["theta_i_deg"] = parse_angles(args.angles)
     if args.rotations is not None:
         kw["rotations_deg"] = parse_angles(args.rotations, "--rotations")
+    if args.plan is not None:  # an LBL plan file: its fields, not also the options'
+        from gonio.campaign.plan import read_plan_file
+
+        both = [
+            o for o, a in (("--angles", "angles"), ("--rotations", "rotations")) if getattr(args, a)
+        ]
+        if both or args.restandard_every:
+            raise ValueError(
+                f"--plan: the plan file sets what {both or ['--restandard-every']} would"
+            )
+        kw.update(read_plan_file(args.plan))
     if args.compare is not None:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
