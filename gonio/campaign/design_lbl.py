@@ -69,6 +69,7 @@ class _LBLCandidates:
     preset: str
     material: str
     term_names: list[str]
+    expanded: dict[str, float] = dataclasses.field(default_factory=dict)  # the campaign's U
 
 
 def lbl_candidates(
@@ -146,6 +147,7 @@ def lbl_candidates(
         B.reshape(len(angles), len(rots), P, -1), rand, float(r.cov_scale),
         {k: float(r.params[k]) for k in names}, preset, material,
         [p.name for p in sysp] + [p.name for p in got["perts"] if p.kind == "random"],
+        dict(res.summary["budget"]["expanded"]),
     )  # fmt: skip
 
 
@@ -231,6 +233,8 @@ def design_lbl(
     if time_limit_h is not None and not (math.isfinite(time_limit_h) and time_limit_h > 0):
         raise DesignError(f"time limit {time_limit_h!r} h: expected a positive number of hours")
     tg = parse_targets(None) if targets is None else targets
+    if candidates is None:  # the cheap checks before the candidate campaign
+        _precheck(material, tg, preset, time_limit_h)
     c = candidates or lbl_candidates(material, preset=preset)
     valid = set(c.names) | {"all"}
     for name in tg:
@@ -289,6 +293,30 @@ def design_lbl(
         tabs, pred, _hours(c, amask, rmask), default, time.perf_counter() - t0,
         [p for p in tabs if pred[p] > tabs[p]],
     )  # fmt: skip
+
+
+def _precheck(material: str, tg: dict, preset: str, time_limit_h: float | None) -> None:
+    """Target names against the material's model's parameters, the time limit against the
+    quickest plan (one angle, one rotation), before any simulation."""
+    from gonio import brdf, materials
+    from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
+
+    model = materials.get(material)
+    names = set(brdf.spec(model.name).bounds)
+    for name in tg:
+        if name != "all" and name not in names:
+            raise DesignError(
+                f"target {name!r} is not a parameter of {model.name}; expected one of "
+                f"{sorted(names)} or all"
+            )
+    if time_limit_h is not None:
+        timing = TIMINGS.get(preset, TIMINGS["modern"])
+        quickest = estimate_run_time([0.0], [0.0], 3, timing)["total_s"] / 3600.0
+        if quickest > time_limit_h:
+            raise DesignError(
+                f"time limit {time_limit_h} h: no plan can meet it (one angle at one rotation "
+                f"takes {quickest:.3g} h)"
+            )
 
 
 def _greedy_angles(

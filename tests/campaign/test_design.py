@@ -127,3 +127,70 @@ def test_plan_file_round_trip(cands, tmp_path):
     b = np.sort(np.round(np.degrees(r.plan.angles), 3), axis=0)
     np.testing.assert_allclose(a, b, atol=2e-3)
     assert len(back) == len(r.plan)
+
+
+# -- LBL --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def lbl_cands():
+    """A small candidate campaign: rolled brass, three angles, two rotations (modern preset)."""
+    from gonio.campaign import design_lbl
+
+    return design_lbl.lbl_candidates(
+        "rolled_brass", angles_deg=(20.0, 40.0, 60.0), rotations_deg=(0.0, 90.0)
+    )
+
+
+def test_lbl_full_candidate_set_is_the_campaigns_budget(lbl_cands):
+    """The budget decomposed by capture and summed again over every capture equals the
+    candidate campaign's own budget (gonio.campaign.budget.build_budget)."""
+    from gonio.campaign import design_lbl
+
+    c = lbl_cands
+    full = design_lbl._u2(c, np.ones(3, bool), np.ones(2, bool), np.zeros(len(c.names)))
+    assert np.all(np.isfinite(full)) and np.all(full > 0)
+    np.testing.assert_allclose(2 * np.sqrt(full), [c.expanded[p] for p in c.names], rtol=1e-6)
+
+
+def test_lbl_design_meets_the_default_u_and_writes_a_plan_file(lbl_cands, tmp_path):
+    from gonio.campaign import design_lbl
+    from gonio.campaign.plan import read_plan_file
+
+    r = design_lbl.design_lbl("rolled_brass", candidates=lbl_cands, default_factor=1.5)
+    assert r.not_met == []
+    for p, t in r.targets.items():
+        assert r.predicted[p] <= t
+    assert r.hours <= r.default["hours"]
+    path = tmp_path / "plan.json"
+    design_lbl.write_lbl_plan(path, r)
+    kw = read_plan_file(path)
+    assert kw["theta_i_deg"] == r.theta_i_deg and kw["rotations_deg"] == r.rotations_deg
+
+
+def test_lbl_bad_input_before_the_candidate_campaign():
+    from gonio.campaign import design_lbl
+
+    with pytest.raises(d.DesignError, match="'alpha_q' is not a parameter of ward"):
+        design_lbl.design_lbl("rolled_brass", d.parse_targets(["alpha_q=1%"]))
+    with pytest.raises(d.DesignError, match="no plan can meet it"):
+        design_lbl.design_lbl("rolled_brass", time_limit_h=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[1, 2]", "expected a JSON object with instrument 'lbl'"),
+        ('{"instrument": "cornell", "theta_i_deg": [10]}', "instrument 'lbl'"),
+        ('{"rotations_deg": [0]}', "missing theta_i_deg"),
+        ('{"theta_i_deg": []}', "expected a list of numbers"),
+        ('{"theta_i_deg": [10, "x"]}', "expected a list of numbers"),
+        ('{"theta_i_deg": [10], "restandard_every": 1.5}', "expected an integer"),
+        ("{not json", "not JSON"),
+    ],
+)
+def test_lbl_plan_file_rejects(tmp_path, text, message):
+    from gonio.campaign.plan import read_plan_file
+
+    p = tmp_path / "p.json"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        read_plan_file(p)
