@@ -274,9 +274,13 @@ def _split_jacobian(jac: NDArray, g: int, nb: int, n_shape: int, nk: int):
     return jt, jk
 
 
-def _fitted(material: str, prior: dict | None) -> tuple[Any, list[str], list[str], str, list]:
+def _fitted(
+    material: str, prior: dict | None, model: Any = None
+) -> tuple[Any, list[str], list[str], str, list]:
     """The prior's model and what the campaign's fit frees (cheap: no simulation):
-    ``(truth, names, free_k, fit_mode, prior points)``."""
+    ``(prior model, names, free_k, fit_mode, prior points)``. The structure (which components
+    are on) is the material preset's, as the campaign's fit takes it; the values are the
+    preset's, or ``model``'s (an estimate, e.g. a pilot's fit) where given."""
     from gonio import materials
     from gonio.campaign.cornell import _truth_and_template
 
@@ -289,6 +293,10 @@ def _fitted(material: str, prior: dict | None) -> tuple[Any, list[str], list[str
         )
     shape = [k for k in ("sigma", "tau") if k not in fixed]
     names = shape + [f"{k}[{b}]" for k in free_k for b in range(31)]
+    if model is not None:
+        if getattr(model, "name", None) != truth.name:
+            raise DesignError(f"prior model {model!r}: expected a {truth.name} model")
+        truth = type(truth)(**{**truth.params, **{k: model.params[k] for k in (*shape, *free_k)}})
     return truth, names, free_k, mode, _prior_points(truth, shape, prior or {})
 
 
@@ -310,6 +318,7 @@ def cornell_candidates(
     n_grid: int = 13,
     theta_i_deg: tuple = (10, 20, 30, 40, 50, 60, 70, 80),
     corrections: dict | None = None,
+    model: Any = None,
 ) -> _Candidates:
     """The candidate geometries of the Cornell instrument with their predicted readings,
     noise, time, Jacobians and systematic patterns (module docstring)."""
@@ -318,7 +327,7 @@ def cornell_candidates(
     from gonio.simulator.cornell import BANDS_NM, CornellConfig, effective_cos, forward
     from gonio.simulator.cornell_effects import lab_knowledge
 
-    truth, names, free_k, mode, pts = _fitted(material, prior)
+    truth, names, free_k, mode, pts = _fitted(material, prior, model)
     shape = names[: len(names) - 31 * len(free_k)]
     lab = CornellConfig().lab_view()
     knowledge = lab_knowledge(preset) if preset not in (None, "ideal") else {}
@@ -555,7 +564,9 @@ def _families(pred: dict) -> dict[str, list[str]]:
 
 def _absolute_targets(targets: dict[str, tuple[float, bool]], c: _Candidates) -> dict[str, float]:
     """Per fitted parameter, the absolute target U. A relative target of a per-band
-    coefficient whose prior value is 0 is taken relative to its family's median |k|."""
+    coefficient is taken relative to ``max(|k_b|, 0.1 max_b |k_b|)``: a band where the
+    component nearly vanishes (garnet's k_uds below 600 nm is 0; a pilot's fit puts it
+    at 1e-4) gets a target on the component's scale, not a vanishing one."""
     truth = c.info["truth"].params
     out: dict[str, float] = {}
     _check_target_names(targets, c.names, c.info["truth"].name)
@@ -571,9 +582,8 @@ def _absolute_targets(targets: dict[str, tuple[float, bool]], c: _Candidates) ->
         if "[" in p:
             b = int(p.split("[")[1].rstrip("]"))
             arr = np.broadcast_to(np.asarray(truth[fam], float), (31,))
-            val = abs(float(arr[b]))
-            if val < 1e-3 * max(float(np.max(np.abs(arr))), 1e-300):
-                val = float(np.median(np.abs(arr[arr != 0]))) if np.any(arr != 0) else 1.0
+            top = float(np.max(np.abs(arr)))
+            val = max(abs(float(arr[b])), 0.1 * top) if top > 0 else 1.0
         else:
             val = abs(float(truth[p]))
         out[p] = v * val
@@ -591,12 +601,14 @@ def design_cornell(
     max_steps: int = 400,
     margin: float = 0.1,
     refine: int = 3,
+    model: Any = None,
     candidates: _Candidates | None = None,
 ) -> DesignResult:
     """Design a Cornell plan (module docstring). ``targets`` from :func:`parse_targets`
     (default every parameter at 5 %), ``prior`` from :func:`parse_prior`, ``time_limit_h``
     the most real-instrument time the plan may take; the search aims at ``(1 - margin)``
-    times each target (the achieved U scatters about the prediction with the data's noise)
+    times each target (the achieved U scatters about the prediction with the data's noise);
+    ``model``: the prior's values (default the material preset's)
     and tightens the targets the ordered plan's full budget misses, ``refine`` times.
     Raises :class:`DesignError` for a target that is not a fitted parameter, a prior outside
     the model's bounds or a time limit no plan can meet."""
@@ -607,9 +619,11 @@ def design_cornell(
         raise DesignError(f"time limit {time_limit_h!r} h: expected a positive number of hours")
     tg = parse_targets(None) if targets is None else targets
     if candidates is None:  # the cheap checks before the instrument's simulation
-        truth, names, *_ = _fitted(material, prior)
+        truth, names, *_ = _fitted(material, prior, model)
         _check_target_names(tg, names, truth.name)
-    c = candidates or cornell_candidates(material, preset=preset, prior=prior, n_grid=n_grid)
+    c = candidates or cornell_candidates(
+        material, preset=preset, prior=prior, n_grid=n_grid, model=model
+    )
     tabs = _absolute_targets(tg, c)
     P = len(c.names)
     t2 = np.full(P, np.inf)

@@ -56,6 +56,19 @@ def _plan_options(group) -> None:
         "design writes it)",
     )
     group.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="cornell: a short pilot, a fit, the plan designed from it (gonio design) to the "
+        "--target uncertainties, then that plan; summary in OUT/adaptive.json",
+    )
+    group.add_argument(
+        "--target",
+        action="append",
+        default=[],
+        metavar="NAME=U[%]",
+        help="cornell --adaptive: target expanded uncertainty, as gonio design takes it",
+    )
+    group.add_argument(
         "--through-drivers",
         action="store_true",
         help="cornell: drive fake ESP300 and USB2000+ devices through the drivers",
@@ -221,7 +234,11 @@ _LBL_ONLY = {
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
 }
-_CORNELL_ONLY = {"--through-drivers": ("through_drivers", False)}
+_CORNELL_ONLY = {
+    "--through-drivers": ("through_drivers", False),
+    "--adaptive": ("adaptive", False),
+    "--target": ("target", []),
+}
 
 
 def _refuse_other_instrument(args) -> None:
@@ -250,8 +267,34 @@ def _preset(args, instrument: str, default: str) -> str:
     return p
 
 
+def _run_adaptive(args) -> int:
+    from gonio.campaign import design
+    from gonio.campaign.design_adaptive import adaptive_cornell, adaptive_text
+
+    if args.plan or args.through_drivers or args.resume:
+        raise ValueError(
+            "--adaptive: designs its own plan (no --plan, --through-drivers, --resume)"
+        )
+    material = args.material or "garnet_red_paint"
+    out = check_output_dir(args.out or f"adaptive_{material}_seed{args.seed}", "--out")
+    s = adaptive_cornell(
+        material, design.parse_targets(args.target or None), out, seed=args.seed,
+        instrument_seed=args.instrument_seed, preset=_preset(args, "cornell", "cornell2005"),
+    )  # fmt: skip
+    if not args.quiet:
+        print(adaptive_text(s))
+    if args.json:
+        write_json(args.json, s)
+    return 0
+
+
 def _run_cornell(args) -> int:
     from gonio.campaign.cornell import run_cornell_campaign, summary_text
+
+    if args.adaptive:
+        return _run_adaptive(args)
+    if args.target:
+        raise ValueError("--target: an option of --adaptive (gonio design takes targets too)")
 
     s = run_cornell_campaign(
         args.material or "garnet_red_paint",

@@ -194,3 +194,33 @@ def test_lbl_plan_file_rejects(tmp_path, text, message):
     p.write_text(text)
     with pytest.raises(ValueError, match=message):
         read_plan_file(p)
+
+
+# -- adaptive ---------------------------------------------------------------------------------
+def test_adaptive_refuses_a_bad_target_before_the_pilot(tmp_path):
+    from gonio.campaign.design_adaptive import adaptive_cornell
+
+    with pytest.raises(d.DesignError, match="'alpha_x' is not a fitted parameter"):
+        adaptive_cornell("garnet_red_paint", d.parse_targets(["alpha_x=1%"]), tmp_path / "a")
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.slow
+def test_adaptive_campaign_stages(tmp_path):
+    """Pilot, design from the pilot's fit (not the preset's values), main campaign: each
+    stage's time in the summary, the main campaign's achieved U as the design predicted."""
+    import json
+
+    from gonio.campaign.design_adaptive import adaptive_cornell
+
+    s = adaptive_cornell(
+        "garnet_red_paint", d.parse_targets(["tau=2%", "k_dd=5%"]), tmp_path / "a", n_grid=3
+    )
+    st = s["stages"]
+    assert st["pilot"]["n_geometries"] == 21 and st["pilot"]["real_instrument_h"] > 0
+    assert st["main"]["n_geometries"] == st["design"]["n_geometries"]
+    lo, hi = st["design"]["prior"]["tau"]
+    assert lo < 8.2 < hi and hi - lo < 1.0  # the pilot's estimate and its U, not a guess
+    for p, f in s["final"].items():
+        assert abs(f["achieved_U"] / f["predicted_U"] - 1) < 0.25, p
+    assert json.loads((tmp_path / "a" / "adaptive.json").read_text())["n_met"] == s["n_met"]

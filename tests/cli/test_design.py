@@ -72,3 +72,18 @@ def test_campaign_runs_an_lbl_plan_file(tmp_path, capsys):
     bad = ["campaign", "--plan", str(plan), "--angles", "10", "--out", str(tmp_path / "d")]
     assert main(bad) == 2
     assert "the plan file sets what ['--angles']" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--adaptive", "--target", "alpha_x=1%"], "'alpha_x' is not a fitted parameter"),
+        (["--adaptive", "--plan", "hemispherical"], "--adaptive: designs its own plan"),
+        (["--target", "tau=1%"], "--target: an option of --adaptive"),
+    ],
+)
+def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
+    out = tmp_path / "a"
+    assert main(["campaign", "--instrument", "cornell", *argv, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
