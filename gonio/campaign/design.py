@@ -631,7 +631,7 @@ def design_cornell(
     for i, p in enumerate(c.names):
         if p not in tabs:
             continue
-        floor = 2.0 * c.const[i]
+        floor = float(2.0 * c.const[i])
         if tabs[p] <= floor:
             dom = max(c.const_terms, key=lambda n: c.const_terms[n][i])
             unreachable[p] = {"target": tabs[p], "floor": floor, "dominant": dom}
