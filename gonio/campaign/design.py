@@ -35,6 +35,14 @@ band's coefficients and the shared shape parameters), until every reachable targ
 the time limit is spent; then a backward pass drops geometries whose removal keeps every
 target met, the slowest first.
 
+Measured (garnet red paint, cornell2005, every parameter at 5 %, the default 13 x 13 grid:
+1186 candidates): a 5-geometry plan of 0.028 h (the default plan: 0.63 h, k_fs at ~25 %;
+the hemispherical plan: 11.4 h) run on instruments 0-19: the truth within the achieved U for
+1878/1900 parameters, achieved / predicted U 0.86-1.16 (median 1.003), every target met
+(1880/1880). A prediction holds for the model it is made with: so few geometries leave
+little redundancy to reveal a wrong model. The greedy search can stall short of a target
+that a plan could reach when a systematic term dominates (seen with a 3 x 3 grid).
+
 References
 ----------
 .. [JCGM100] JCGM 100:2008, Evaluation of measurement data - Guide to the expression of

@@ -31,6 +31,12 @@ warm-up and drift follow the capture times of the candidate campaign's schedule,
 designed one's). The prior is the material preset; a prior range would need one candidate
 campaign per point and is not done for this instrument.
 
+Measured (rolled brass, modern preset, targets the default plan's predicted U, three design
+instruments): 9 angles x 2 rotations, 0.036 h against the default's 21 x 3 in 0.078 h; run
+with the default plan on instruments 0-19: truth within the achieved U 78/80, achieved /
+predicted U 0.85-1.27, the designed plan's U at or below the default plan's on the same
+instrument for ρs, α_x, α_y every time (ratios 0.74-0.93) and for ρd 13/20 times (0.91-1.08).
+
 References
 ----------
 .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer Graphics
