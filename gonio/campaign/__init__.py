@@ -8,6 +8,9 @@ The rooms inside (``docs/architecture.md``):
   Torrance 2005 §5.1);
 * :mod:`gonio.campaign.drivers` — both campaigns through the real drivers and the fake devices;
 * :mod:`gonio.campaign.sweep` — grids of campaigns on a process pool or a Dask cluster;
+* :mod:`gonio.campaign.design`, :mod:`gonio.campaign.design_lbl`,
+  :mod:`gonio.campaign.design_adaptive` — the plan that reaches target uncertainties in the
+  least instrument time (``gonio design``, ``gonio campaign --adaptive``);
 * :mod:`gonio.campaign.executor` — the one place for concurrency: the worker pool, the plot
   process, the I/O thread and the BLAS thread limit that all campaigns share.
 

@@ -352,3 +352,50 @@ def capture_seed(seed: int, key: str) -> int:
     h = int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "little")
     ss = np.random.SeedSequence(int(seed), spawn_key=(h,))
     return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+
+
+#: the fields an LBL plan file may set (the measurement's design; everything else stays the
+#: command line's)
+PLAN_FILE_FIELDS = ("theta_i_deg", "rotations_deg", "exposures_s", "restandard_every")
+
+
+def read_plan_file(path: Any) -> dict[str, Any]:
+    """An LBL plan file (JSON, as ``gonio design`` writes it): ``{"instrument": "lbl",
+    "theta_i_deg": [...], "rotations_deg": [...], "restandard_every": N, ...}`` → the
+    :class:`Plan` fields of :data:`PLAN_FILE_FIELDS` it sets (checked again by
+    :meth:`Plan.resolved`). A ``ValueError`` names the file and what is wrong."""
+    import json
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"plan file {str(p)!r} does not exist")
+    try:
+        d = json.loads(p.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"plan file {str(p)!r}: not JSON ({exc})") from None
+    if not isinstance(d, dict) or d.get("instrument", "lbl") != "lbl":
+        raise ValueError(f"plan file {str(p)!r}: expected a JSON object with instrument 'lbl'")
+    if "theta_i_deg" not in d:
+        raise ValueError(f"plan file {str(p)!r}: missing theta_i_deg")
+    out: dict[str, Any] = {}
+    for k in PLAN_FILE_FIELDS:
+        v = d.get(k)
+        if v is None:
+            continue
+        if k == "restandard_every":
+            if not isinstance(v, int) or isinstance(v, bool):
+                raise ValueError(f"plan file {str(p)!r}: {k} {v!r}: expected an integer")
+            out[k] = v
+            continue
+        if (
+            not isinstance(v, list)
+            or not v
+            or not all(
+                isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+                for x in v
+            )
+        ):
+            raise ValueError(f"plan file {str(p)!r}: {k} {v!r}: expected a list of numbers")
+        out[k] = tuple(float(x) for x in v)
+    return out

@@ -53,7 +53,21 @@ def _plan_options(group) -> None:
         "--plan",
         default=None,
         help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
-        "(deg)",
+        "(deg); lbl: a JSON plan file (theta_i_deg, rotations_deg, restandard_every; as gonio "
+        "design writes it)",
+    )
+    group.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="cornell: a short pilot, a fit, the plan designed from it (gonio design) to the "
+        "--target uncertainties, then that plan; summary in OUT/adaptive.json",
+    )
+    group.add_argument(
+        "--target",
+        action="append",
+        default=[],
+        metavar="NAME=U[%]",
+        help="cornell --adaptive: target expanded uncertainty, as gonio design takes it",
     )
     group.add_argument(
         "--through-drivers",
@@ -236,7 +250,11 @@ _LBL_ONLY = {
     "--restandard-every": ("restandard_every", 0),
     "--raw": ("raw", "keep"),
 }
-_CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
+_CORNELL_ONLY = {
+    "--through-drivers": ("through_drivers", False),
+    "--adaptive": ("adaptive", False),
+    "--target": ("target", []),
+}
 
 
 def _refuse_other_instrument(args) -> None:
@@ -265,8 +283,34 @@ def _preset(args, instrument: str, default: str) -> str:
     return p
 
 
+def _run_adaptive(args) -> int:
+    from gonio.campaign import design
+    from gonio.campaign.design_adaptive import adaptive_cornell, adaptive_text
+
+    if args.plan or args.through_drivers or args.resume:
+        raise ValueError(
+            "--adaptive: designs its own plan (no --plan, --through-drivers, --resume)"
+        )
+    material = args.material or "garnet_red_paint"
+    out = check_output_dir(args.out or f"adaptive_{material}_seed{args.seed}", "--out")
+    s = adaptive_cornell(
+        material, design.parse_targets(args.target or None), out, seed=args.seed,
+        instrument_seed=args.instrument_seed, preset=_preset(args, "cornell", "cornell2005"),
+    )  # fmt: skip
+    if not args.quiet:
+        print(adaptive_text(s))
+    if args.json:
+        write_json(args.json, s)
+    return 0
+
+
 def _run_cornell(args) -> int:
     from gonio.campaign.cornell import run_cornell_campaign, summary_text
+
+    if args.adaptive:
+        return _run_adaptive(args)
+    if args.target:
+        raise ValueError("--target: an option of --adaptive (gonio design takes targets too)")
 
     s = run_cornell_campaign(
         args.material or "garnet_red_paint",
@@ -322,6 +366,17 @@ def run(args) -> int:
         kw["theta_i_deg"] = parse_angles(args.angles)
     if args.rotations is not None:
         kw["rotations_deg"] = parse_angles(args.rotations, "--rotations")
+    if args.plan is not None:  # an LBL plan file: its fields, not also the options'
+        from gonio.campaign.plan import read_plan_file
+
+        both = [
+            o for o, a in (("--angles", "angles"), ("--rotations", "rotations")) if getattr(args, a)
+        ]
+        if both or args.restandard_every:
+            raise ValueError(
+                f"--plan: the plan file sets what {both or ['--restandard-every']} would"
+            )
+        kw.update(read_plan_file(args.plan))
     if args.compare is not None:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)

@@ -82,7 +82,7 @@ def test_fit_command(tmp_path, capsys):
             "--mirror: option(s) of --instrument lbl only",
         ),
         (["--instrument", "cornell", "--angles", "30"], "--angles: option(s) of --instrument lbl"),
-        (["--plan", "hemispherical"], "--plan: option(s) of --instrument cornell only"),
+        (["--plan", "hemispherical"], "plan file 'hemispherical' does not exist"),  # lbl: JSON
         (["--through-drivers"], "--through-drivers: option(s) of --instrument cornell only"),
     ],
 )

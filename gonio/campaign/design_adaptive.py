@@ -1,0 +1,163 @@
+"""Adaptive Cornell campaigns: a short pilot, a fit, the design from its estimate, the plan.
+
+``gonio campaign --instrument cornell --adaptive --target ...`` (:func:`adaptive_cornell`):
+
+1. *pilot*: a short plan (two incidence-plane scans, θi = 30° and 60°, every 15° with a 5°
+   step within 5° of the specular direction: 22 geometries) measured and fitted like any
+   campaign (``out/pilot``);
+2. *design*: :func:`gonio.campaign.design.design_cornell` with the pilot's fit as the prior
+   (its values; the shape parameter's range the pilot's expanded uncertainty about its
+   estimate, so the design holds over what the pilot leaves open) — the material preset
+   gives only the model's structure, as it does to every Cornell fit;
+3. *main*: the designed plan measured and fitted (``out``).
+
+The summary (``out/adaptive.json``) gives each stage's real-instrument hours and wall time, the
+designed plan's predicted U and the main campaign's achieved U per parameter against the
+targets. The final U is the main campaign's alone: the pilot's data are not pooled with it
+(their fit would need the two sessions' references tied together).
+
+References
+----------
+.. [Atkinson2007] A. C. Atkinson, A. N. Donev and R. D. Tobias, "Optimum Experimental
+   Designs, with SAS", Oxford University Press, 2007, ch. 17 (designs for non-linear models:
+   sequential designs from a first estimate).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["adaptive_cornell", "pilot_plan"]
+
+
+def pilot_plan(config: Any = None) -> Any:
+    """The pilot's plan (module docstring), on the controller's grid."""
+    from gonio.campaign.cornell import build_plan
+    from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_plans import incidence_plane_plan
+
+    cfg = config or CornellConfig().lab_view()
+    p = incidence_plane_plan(
+        (30.0, 60.0), coarse_step_deg=15.0, fine_step_deg=5.0, fine_half_width_deg=5.0,
+        kin=cfg.kinematics,
+    )  # fmt: skip
+    return build_plan(p, config=cfg)
+
+
+def _prior_from(summary: dict, material: str) -> tuple[Any, dict[str, tuple[float, float]]]:
+    """The pilot's fitted li_torrance model and the shape parameters' range (estimate ± its
+    expanded uncertainty, inside the model's bounds)."""
+    from gonio import brdf, materials
+
+    base = materials.get(material)
+    fit, bud = summary["fit"], summary["budget"]["parameters"]
+    params = dict(base.params)
+    for k in ("k_dd", "k_udf", "k_uds", "k_fs"):
+        if f"{k}[0]" in fit:
+            params[k] = np.array([max(fit[f"{k}[{b}]"], 0.0) for b in range(31)])
+    prior = {}
+    bounds = brdf.spec(base.name).bounds
+    for k in ("sigma", "tau"):
+        if k in fit:
+            params[k] = float(fit[k])
+        if k in bud and math.isfinite(bud[k]["U"]) and bud[k]["U"] > 0:
+            lo, hi = bounds[k]
+            u = float(bud[k]["U"])
+            prior[k] = (max(lo, fit[k] - u), min(hi, fit[k] + u))
+    return type(base)(**params), prior
+
+
+def adaptive_cornell(
+    material: str,
+    targets: dict[str, tuple[float, bool]] | None,
+    out: str | Path,
+    *,
+    seed: int = 0,
+    instrument_seed: int | None = None,
+    preset: str = "cornell2005",
+    time_limit_h: float | None = None,
+    n_grid: int = 13,
+) -> dict[str, Any]:
+    """Pilot, design, main campaign (module docstring); the summary (also
+    ``out/adaptive.json``). ``n_grid``: the design's candidates (``design_cornell``)."""
+    from gonio.campaign import design
+    from gonio.campaign.cornell import _write_json, run_cornell_campaign
+
+    tg = design.parse_targets(None) if targets is None else targets
+    truth, names, *_ = design._fitted(material, None)  # checks before the pilot runs
+    design._check_target_names(tg, names, truth.name)
+    outp = Path(out)
+    kw = dict(seed=seed, instrument_seed=instrument_seed, effects=preset)
+    stages: dict[str, dict[str, Any]] = {}
+    t0 = time.perf_counter()
+    pilot = run_cornell_campaign(material, plan=pilot_plan(), out=outp / "pilot", **kw)
+    stages["pilot"] = {"n_geometries": pilot["n_geometries"], "wall_s": time.perf_counter() - t0,
+                       "real_instrument_h": pilot["estimated_real_instrument_h"]}  # fmt: skip
+    model, prior = _prior_from(pilot, material)
+    t1 = time.perf_counter()
+    left = None if time_limit_h is None else time_limit_h - stages["pilot"]["real_instrument_h"]
+    if left is not None and left <= 0:
+        raise design.DesignError(
+            f"time limit {time_limit_h} h: the pilot alone takes "
+            f"{stages['pilot']['real_instrument_h']:.3g} h"
+        )
+    res = design.design_cornell(
+        material, tg, preset=None if preset == "ideal" else preset, prior=prior,
+        time_limit_h=left, model=model, n_grid=n_grid,
+    )  # fmt: skip
+    outp.mkdir(parents=True, exist_ok=True)
+    plan_file = outp / "designed_plan.csv"
+    design.write_cornell_plan(plan_file, res)
+    stages["design"] = {"wall_s": time.perf_counter() - t1, "n_geometries": len(res.plan),
+                        "predicted_real_instrument_h": res.hours, "prior": prior}  # fmt: skip
+    t2 = time.perf_counter()
+    main = run_cornell_campaign(material, plan=str(plan_file), out=outp / "main", **kw)
+    stages["main"] = {"n_geometries": main["n_geometries"], "wall_s": time.perf_counter() - t2,
+                      "real_instrument_h": main["estimated_real_instrument_h"]}  # fmt: skip
+    b = main["budget"]["parameters"]
+    final = {
+        p: {"target": t, "predicted_U": res.predicted[p]["U"], "achieved_U": b[p]["U"],
+            "met": bool(b[p]["U"] <= t), "truth_within_U": b[p].get("truth_within_U")}
+        for p, t in res.targets.items() if p in b
+    }  # fmt: skip
+    summary = {
+        "material": material,
+        "instrument": "cornell",
+        "stages": stages,
+        "real_instrument_h": stages["pilot"]["real_instrument_h"]
+        + stages["main"]["real_instrument_h"],
+        "n_targets": len(final),
+        "n_met": sum(f["met"] for f in final.values()),
+        "unreachable": res.unreachable,
+        "final": final,
+    }
+    _write_json(outp / "adaptive.json", summary)
+    return summary
+
+
+def adaptive_text(s: dict[str, Any]) -> str:
+    """A short report of an adaptive campaign."""
+    st = s["stages"]
+    lines = [
+        f"{s['material']} (cornell, adaptive): {s['real_instrument_h']:.3f} h on the real "
+        f"instrument (estimated)",
+        f"  pilot  {st['pilot']['n_geometries']:>4} geometries "
+        f"{st['pilot']['real_instrument_h']:.3f} h  ({st['pilot']['wall_s']:.1f} s here)",
+        f"  design {st['design']['n_geometries']:>4} geometries predicted "
+        f"{st['design']['predicted_real_instrument_h']:.3f} h  ({st['design']['wall_s']:.1f} s)",
+        f"  main   {st['main']['n_geometries']:>4} geometries "
+        f"{st['main']['real_instrument_h']:.3f} h  ({st['main']['wall_s']:.1f} s here)",
+        f"  targets met (achieved U): {s['n_met']}/{s['n_targets']}",
+    ]
+    worst = sorted(s["final"].items(), key=lambda kv: -kv[1]["achieved_U"] / kv[1]["target"])[:5]
+    for p, f in worst:
+        lines.append(
+            f"    {p}: target {f['target']:.3g}, predicted {f['predicted_U']:.3g}, "
+            f"achieved {f['achieved_U']:.3g}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,135 @@
+"""``gonio design``: the plan that reaches a target uncertainty in the least instrument time."""
+
+from __future__ import annotations
+
+from gonio.cli._common import add_json_option, output_file, write_json
+
+COMMAND = "design"
+HELP = "design a measurement plan that reaches target uncertainties in the least instrument time"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument(
+        "--instrument",
+        choices=("cornell", "lbl"),
+        default="cornell",
+        help="cornell: the geometries of the three-axis gonioreflectometer (default); lbl: the "
+        "incidence angles and rotations of the imaging gonioreflectometer",
+    )
+    parser.add_argument(
+        "--material",
+        default=None,
+        help="the prior: a material preset (default garnet_red_paint on cornell, rolled_brass "
+        "on lbl)",
+    )
+    parser.add_argument(
+        "--instrument-preset",
+        "--preset",
+        dest="preset",
+        default=None,
+        choices=["cornell2005", "modern", "ward1992", "ideal"],
+        help="the instrument's build as the laboratory knows it (default cornell2005 on "
+        "cornell, modern on lbl)",
+    )
+    parser.add_argument(
+        "--default-u",
+        type=float,
+        default=None,
+        metavar="F",
+        help="lbl: every target F times the default plan's predicted U (1: the default's)",
+    )
+    parser.add_argument(
+        "--target",
+        action="append",
+        default=[],
+        metavar="NAME=U[%]",
+        help="target expanded uncertainty (k=2) of a fitted parameter (tau), a per-band family "
+        "(k_fs: every band), one band (k_fs[12]) or all; relative with %% (repeatable; default "
+        "all=5%%)",
+    )
+    parser.add_argument(
+        "--prior",
+        action="append",
+        default=[],
+        metavar="NAME=LOW:HIGH",
+        help="prior range of a shape parameter (tau=7:9.5); the design holds over its ends",
+    )
+    parser.add_argument(
+        "--time-limit",
+        type=float,
+        default=None,
+        metavar="HOURS",
+        help="the most real-instrument time the plan may take",
+    )
+    parser.add_argument(
+        "--grid",
+        type=int,
+        default=13,
+        metavar="N",
+        help="candidates: N x N viewing directions per incidence angle (default 13)",
+    )
+    parser.add_argument(
+        "--out",
+        type=output_file,
+        default=None,
+        help="plan file to write, for gonio campaign --plan (default designed_plan.csv on "
+        "cornell, designed_plan.json on lbl)",
+    )
+    add_json_option(parser)
+
+
+def _run_lbl(args) -> int:
+    from gonio.campaign import design, design_lbl
+
+    if args.prior or args.grid != 13:
+        raise ValueError("--prior, --grid: options of --instrument cornell only")
+    preset = args.preset or "modern"
+    if preset not in ("modern", "ward1992", "ideal"):
+        raise ValueError(f"--preset {preset}: not an lbl preset (modern, ward1992, ideal)")
+    if args.default_u is not None and not args.default_u > 0:
+        raise ValueError(f"--default-u {args.default_u}: expected a positive factor")
+    material = args.material or "rolled_brass"
+    out = args.out or "designed_plan.json"
+    targets = design.parse_targets(args.target or None)
+    res = design_lbl.design_lbl(
+        material, targets, preset=preset, time_limit_h=args.time_limit,
+        default_factor=args.default_u,
+    )  # fmt: skip
+    design_lbl.write_lbl_plan(out, res)
+    print(res.table())
+    print(f"plan written to {out} (run it: gonio campaign --plan {out} --material {material})")
+    if args.json:
+        write_json(args.json, res.to_dict())
+    return 0
+
+
+def run(args) -> int:
+    from gonio.campaign import design
+
+    if args.instrument == "lbl":
+        return _run_lbl(args)
+    if args.default_u is not None:
+        raise ValueError("--default-u: an option of --instrument lbl only")
+    if args.preset not in (None, "cornell2005", "ideal"):
+        raise ValueError(f"--preset {args.preset}: not a cornell preset (cornell2005, ideal)")
+    args.material = args.material or "garnet_red_paint"
+    args.out = args.out or "designed_plan.csv"
+    if args.grid < 3:
+        raise ValueError(f"--grid {args.grid}: expected at least 3")
+    targets = design.parse_targets(args.target or None)
+    prior = design.parse_prior(args.prior)
+    res = design.design_cornell(
+        args.material,
+        targets,
+        preset=None if args.preset == "ideal" else (args.preset or "cornell2005"),
+        prior=prior,
+        time_limit_h=args.time_limit,
+        n_grid=args.grid,
+    )
+    design.write_cornell_plan(args.out, res)
+    print(res.table())
+    print(f"plan written to {args.out} (run it: gonio campaign --instrument cornell --plan "
+          f"{args.out} --material {args.material})")  # fmt: skip
+    if args.json:
+        write_json(args.json, res.to_dict())
+    return 0
