@@ -571,66 +571,7 @@ class CampaignExecutor:
         limits of :meth:`_limit_blas` hold, which load nothing (so nothing more is loaded
         before the workers fork).
         """
-        values = dict(given)
-        waiting = [j for j in jobs if j.kind != "stage"]
-        writes: dict[str, Any] = {}
-        for job in (j for j in jobs if j.kind == "stage"):
-            self._send(waiting, values, writes, plots=1 if job.heavy else None)
-            args = [self._value(values, n) for n in job.needs]
-            with contextlib.ExitStack() as limits:
-                if job.timed:
-                    limits.enter_context(self.stage(job.name))
-                if self._mapped:
-                    limits.enter_context(self.blas())
-                _keep(values, job.makes, job.fn(*args))
-        self._send(waiting, values, writes, plots=None)
-        for name, future in writes.items():
-            self.timings[name] = future.result()
-        with self.stage("plots"):
-            self.wait_plots()
-        return values
-
-    def _send(
-        self, waiting: list[Job], values: dict[str, Any], writes: dict[str, Any], *,
-        plots: int | None,
-    ) -> None:  # fmt: skip
-        """Send the waiting jobs whose inputs exist (at most ``plots`` plots); consecutive
-        plots of one function and inputs go as one batch (their inputs are sent once)."""
-        batch: list[Job] = []
-        for job in [j for j in waiting if all(n in values for n in j.needs)]:
-            if job.kind == "plot" and plots is not None and plots <= 0:
-                continue
-            waiting.remove(job)
-            if job.kind == "plot":
-                if batch and (batch[0].fn, batch[0].needs) != (job.fn, job.needs):
-                    self._draw(batch, values)
-                    batch = []
-                batch.append(job)
-                plots = None if plots is None else plots - 1
-                continue
-            self._draw(batch, values)
-            batch = []
-            args = [self._value(values, n) for n in job.needs]
-            if job.kind == "write":
-                writes[job.name] = self.background(job.fn, *args)
-            else:  # side: the next map's workers run it after its tasks
-                if self._side is not None or len(job.makes) != 1:
-                    raise ValueError(f"side job {job.name!r}: one at a time, making one value")
-                self._side = functools.partial(job.fn, *args)
-                values[job.makes[0]] = _PENDING
-        self._draw(batch, values)
-
-    def _draw(self, batch: list[Job], values: dict[str, Any]) -> None:
-        if batch:
-            args = [self._value(values, n) for n in batch[0].needs]
-            self.plot(batch[0].fn, *args, each=[j.name for j in batch])
-
-    def _value(self, values: dict[str, Any], name: str) -> Any:
-        """``values[name]``; a side job's output waited for (run here if no map took it)."""
-        if values[name] is _PENDING:
-            side, self._side = self._side, None
-            values[name] = side() if side is not None else self.then_result()
-        return values[name]
+        return _Pipeline(self, jobs, given).run()
 
     # ------------------------------------------------------------------ I/O thread
     def background(self, fn: Callable[..., Any], *args: Any) -> Any:
@@ -670,6 +611,75 @@ class CampaignExecutor:
         self._close_pool()
         if self._plotter is not None:
             self._plotter.wait()
+
+
+class _Pipeline:
+    """One run of :meth:`CampaignExecutor.pipeline`: the values so far, the jobs not yet
+    sent, the writes' futures."""
+
+    def __init__(self, ex: CampaignExecutor, jobs: Sequence[Job], given: dict[str, Any]):
+        self.ex = ex
+        self.jobs = list(jobs)
+        self.values = dict(given)
+        self.waiting = [j for j in self.jobs if j.kind != "stage"]
+        self.writes: dict[str, Any] = {}
+
+    def run(self) -> dict[str, Any]:
+        ex = self.ex
+        for job in (j for j in self.jobs if j.kind == "stage"):
+            self.send(plots=1 if job.heavy else None)
+            args = [self.value(n) for n in job.needs]
+            with contextlib.ExitStack() as limits:
+                if job.timed:
+                    limits.enter_context(ex.stage(job.name))
+                if ex._mapped:
+                    limits.enter_context(ex.blas())
+                _keep(self.values, job.makes, job.fn(*args))
+        self.send(plots=None)
+        for name, future in self.writes.items():
+            ex.timings[name] = future.result()
+        with ex.stage("plots"):
+            ex.wait_plots()
+        return self.values
+
+    def send(self, *, plots: int | None) -> None:
+        """Send the waiting jobs whose inputs exist (at most ``plots`` plots); consecutive
+        plots of one function and inputs go as one batch (their inputs are sent once)."""
+        batch: list[Job] = []
+        for job in [j for j in self.waiting if all(n in self.values for n in j.needs)]:
+            if job.kind == "plot" and plots is not None and plots <= 0:
+                continue
+            self.waiting.remove(job)
+            if job.kind == "plot":
+                if batch and (batch[0].fn, batch[0].needs) != (job.fn, job.needs):
+                    self.draw(batch)
+                    batch = []
+                batch.append(job)
+                plots = None if plots is None else plots - 1
+                continue
+            self.draw(batch)
+            batch = []
+            args = [self.value(n) for n in job.needs]
+            if job.kind == "write":
+                self.writes[job.name] = self.ex.background(job.fn, *args)
+            else:  # side: the next map's workers run it after its tasks
+                if self.ex._side is not None or len(job.makes) != 1:
+                    raise ValueError(f"side job {job.name!r}: one at a time, making one value")
+                self.ex._side = functools.partial(job.fn, *args)
+                self.values[job.makes[0]] = _PENDING
+        self.draw(batch)
+
+    def draw(self, batch: list[Job]) -> None:
+        if batch:
+            args = [self.value(n) for n in batch[0].needs]
+            self.ex.plot(batch[0].fn, *args, each=[j.name for j in batch])
+
+    def value(self, name: str) -> Any:
+        """A value; a side job's output waited for (run here if no map took it)."""
+        if self.values[name] is _PENDING:
+            side, self.ex._side = self.ex._side, None
+            self.values[name] = side() if side is not None else self.ex.then_result()
+        return self.values[name]
 
 
 def _keep(values: dict[str, Any], makes: tuple[str, ...], out: Any) -> None:
