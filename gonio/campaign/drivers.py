@@ -440,12 +440,42 @@ def run_cornell_measurements(
     records: dict[int, dict[str, Any]] = dict(checkpoint.records) if checkpoint else {}
     resumed = len(records)
     keep_raw = bool(every) and drift_correction
-    # the raw spectra the drift correction reduces again: one file per geometry beside the
-    # references (written once; the checkpoint keeps only the reduced record)
-    spectra = None
-    if keep_raw and reference_path is not None:
-        spectra = Path(reference_path).with_name("spectra")
-        spectra.mkdir(exist_ok=True)
+    spectra = _spectra_folder(reference_path) if keep_raw else None
+    _measure_missing(rig, proc, c, ang, records, refs, every=every, retries=retries,
+                     stray_correction=stray_correction, keep_raw=keep_raw,
+                     checkpoint=checkpoint, spectra=spectra,
+                     on_measurement=on_measurement)  # fmt: skip
+    if keep_raw:
+        _reduce_against_drift(records, refs, c, stray_correction, spectra)
+    out = _stack_records(records, n)
+    out.update(resumed=np.array(resumed), reference=refs.first,
+               reference_t=np.array(float(refs.first.meta.get("t", np.nan))),
+               references=refs.pairs())  # fmt: skip
+    return out
+
+
+def _spectra_folder(reference_path: str | Path | None) -> Path | None:
+    """Where the raw spectra the drift correction reduces again are kept: one file per
+    geometry beside the references (written once; the checkpoint keeps only the reduced
+    record); None without a reference path."""
+    if reference_path is None:
+        return None
+    spectra = Path(reference_path).with_name("spectra")
+    spectra.mkdir(exist_ok=True)
+    return spectra
+
+
+def _measure_missing(
+    rig: CornellRig, proc: _CornellProcedures, c: Any, ang: NDArray, records: dict[int, Any],
+    refs: _References, *, every: int, retries: int, stray_correction: float, keep_raw: bool,
+    checkpoint: Checkpoint | None, spectra: Path | None,
+    on_measurement: Callable[[int, int], None] | None,
+) -> None:  # fmt: skip
+    """Every geometry of ``ang`` not in ``records`` measured and recorded there (and in the
+    checkpoint, flushed also on an error; its raw spectra in ``spectra``), the standard
+    measured again every ``every`` geometries and after the last
+    (:func:`run_cornell_measurements`)."""
+    n = len(ang)
     # a resumed run is a new session of the instrument (the lamp lit again): its geometries
     # are reduced against its own references, the first measured where it starts
     session = 1 + max((int(r.get("session", 0)) for r in records.values()), default=-1)
@@ -474,18 +504,20 @@ def run_cornell_measurements(
     finally:
         if checkpoint is not None:
             checkpoint.flush()
-    if keep_raw:
-        for j, rec in records.items():
-            if "signal_s" not in rec:  # measured before a resume: its spectra from disk
-                if spectra is None:
-                    raise ValueError(f"geometry {j}: no raw spectra to reduce against drift")
-                rec.update(_load_spectra(spectra / f"{j}.npz"))
-        _reduce_against_interpolated(records, refs, c, stray_correction)
-    out = _stack_records(records, n)
-    out.update(resumed=np.array(resumed), reference=refs.first,
-               reference_t=np.array(float(refs.first.meta.get("t", np.nan))),
-               references=refs.pairs())  # fmt: skip
-    return out
+
+
+def _reduce_against_drift(
+    records: dict[int, dict[str, Any]], refs: _References, c: Any, stray_correction: float,
+    spectra: Path | None,
+) -> None:  # fmt: skip
+    """Every record reduced again against the references interpolated in the measurement
+    sequence; the raw spectra of geometries measured before a resume read from ``spectra``."""
+    for j, rec in records.items():
+        if "signal_s" not in rec:  # measured before a resume: its spectra from disk
+            if spectra is None:
+                raise ValueError(f"geometry {j}: no raw spectra to reduce against drift")
+            rec.update(_load_spectra(spectra / f"{j}.npz"))
+    _reduce_against_interpolated(records, refs, c, stray_correction)
 
 
 class _References:
@@ -804,8 +836,7 @@ def cornell_fake_bench(
     their encoders; the lamp's clock runs with the reads and moves the instrument sees
     (``CornellInstrument.event_clock``).
     """
-    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
-    from gonio.simulator.bench import Bench, Stage, cornell_spectrum_render
+    from gonio.simulator.bench import Bench, cornell_spectrum_render
     from gonio.simulator.cornell import CornellConfig, CornellInstrument
 
     if not isinstance(seed, int | np.integer) or seed < 0:
@@ -823,17 +854,9 @@ def cornell_fake_bench(
               "noise": float(fx.get("stage_noise_deg", 0.0))}  # fmt: skip
     if prime is not None and not any(moving.values()):  # (true poses unknown beforehand)
         inst.prime(np.asarray(prime, dtype=np.float64).reshape(-1, 3))
-    stages = []
-    for name, kw in stage_table["cornell"]:
-        if name in CORNELL_MOTORS and any(moving.values()):
-            from gonio.simulator.effects import effect_rng
-
-            g = effect_rng(int(cfg.instrument_seed), "cornell", "bench", name)
-            kw = {**kw, **moving, "rng": int(g.integers(2**63 - 1))}
-        stages.append(Stage(name, **kw))
     inst.event_clock = inst.fx is not None
     bench = Bench(
-        stages,
+        _bench_stages(int(cfg.instrument_seed), moving),
         time_scale=time_scale,
         spectrum_render=cornell_spectrum_render(inst.spectrum_render),
         wavelength_coeffs=tuple(cfg.wavelength_coeffs),
@@ -842,6 +865,23 @@ def cornell_fake_bench(
         n_pixels=int(cfg.n_pixels),
     )
     return bench, inst
+
+
+def _bench_stages(instrument_seed: int, moving: Mapping[str, float]) -> list[Any]:
+    """The Cornell bench's seven stages; the motors with the realised backlash and
+    positioning noise (``moving``), each drawn from its own stream of the instrument seed."""
+    from gonio.simulator.bench import _INSTRUMENT_STAGES as stage_table
+    from gonio.simulator.bench import Stage
+
+    stages = []
+    for name, kw in stage_table["cornell"]:
+        if name in CORNELL_MOTORS and any(moving.values()):
+            from gonio.simulator.effects import effect_rng
+
+            g = effect_rng(instrument_seed, "cornell", "bench", name)
+            kw = {**kw, **moving, "rng": int(g.integers(2**63 - 1))}
+        stages.append(Stage(name, **kw))
+    return stages
 
 
 def _serve_controllers(
@@ -964,7 +1004,6 @@ def open_served_rig(
         with open_served_rig([json.loads(line) for line in lines]) as (rig, _):
             res = run_cornell_measurements(rig, angles_deg)
     """
-    from gonio.drivers.esp300 import ESP300
     from gonio.drivers.fake import usb as fakeusb
 
     if via not in ("pty", "tcp"):
@@ -980,14 +1019,7 @@ def open_served_rig(
     dev: Any = None
     name = fakeusb.connect(str(usbs[0]["usb_server"]))
     try:
-        axes: dict[str, Axis] = {}
-        for r in esps:
-            port = r["port"] if via == "pty" else r["url"]
-            amap = {str(n): int(i) for i, n in r["axes"].items()}
-            ctl = ESP300.open(port, axes=amap, timeout=device_timeout)
-            ctls.append(ctl)
-            ctl.enable()
-            axes.update(ctl.axes)
+        axes = _open_axes(esps, via, device_timeout, ctls)
         if "arm" in axes:
             from gonio.drivers.usb2000 import USB2000Plus
 
@@ -1001,6 +1033,25 @@ def open_served_rig(
         yield rig, {"controllers": ctls, "usb": name}
     finally:
         _close_fakes(dev, ctls, (), name)
+
+
+def _open_axes(
+    esps: Sequence[Mapping[str, Any]], via: str, timeout: float, ctls: list[Any]
+) -> dict[str, Axis]:
+    """The axes of the served ESP300s (``esps``: their records), each controller opened by
+    its pseudo-terminal or TCP address (``via``), enabled and added to ``ctls`` (which the
+    caller closes, also after an error here)."""
+    from gonio.drivers.esp300 import ESP300
+
+    axes: dict[str, Axis] = {}
+    for r in esps:
+        port = r["port"] if via == "pty" else r["url"]
+        amap = {str(n): int(i) for i, n in r["axes"].items()}
+        ctl = ESP300.open(port, axes=amap, timeout=timeout)
+        ctls.append(ctl)
+        ctl.enable()
+        axes.update(ctl.axes)
+    return axes
 
 
 def lbl_description(inst: Any) -> dict[str, Any]:

@@ -2,7 +2,9 @@
 
 Every campaign (LBL, Cornell, through the drivers) is a short pipeline of named stages —
 prepare, capture and reduce, fit, report — that reads top to bottom; *how* those stages use
-the machine lives here, not in the stages:
+the machine lives here, not in the stages. A stage may be declared as a :class:`Job` (what it
+needs, what it makes, what kind of work it is) and a campaign's jobs run by
+:meth:`CampaignExecutor.pipeline`, which decides when each runs (see there):
 
 * **BLAS on one thread** for the whole campaign (numpy's and scipy's OpenBLAS, restored on
   exit). Its processes already fill the cores, and an OpenBLAS thread spins for a while after
@@ -20,15 +22,16 @@ the machine lives here, not in the stages:
   next captures; a task's writes are finished before its result is reported.
 * **Parallel jobs** (:meth:`CampaignExecutor.parallel`): a stage's independent pieces that
   are not incidence angles (the calibration captures, the ChArUco detection) on processes
-  forked for them; one that needs nothing the campaign's process is still making can be
-  begun earlier (:meth:`CampaignExecutor.start`: the lens's calibration, while this process
-  warms the instrument up).
+  forked for them, after what they must inherit is made (:meth:`CampaignExecutor.inheriting`:
+  the instrument warmed up); one that needs nothing the campaign's process is still making
+  is begun earlier (:meth:`CampaignExecutor.start`: the lens's calibration, while this
+  process warms the instrument up).
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
   forked first so that it loads matplotlib on the idle core while the campaign prepares.
-* **Stage timings** (:meth:`CampaignExecutor.stage`): seconds per named stage, reported in
-  the summary.
+* **Stage timings** (:meth:`CampaignExecutor.stage`): seconds per named stage (without the
+  stages timed inside it), reported in the summary.
 * **Child lifetime**: no process outlives its campaign. SIGTERM (``kill PID``,
   ``Popen.terminate()``, ``subprocess.run(timeout=...)``) is handled like Ctrl-C: it raises
   ``KeyboardInterrupt`` in the campaign, whose exit terminates the pool workers and the plot
@@ -40,18 +43,21 @@ the machine lives here, not in the stages:
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import signal
 import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 from gonio.malloc import keep_freed
 
 __all__ = [
     "CampaignExecutor",
+    "Job",
     "child_signals",
     "die_with_parent",
     "drain_writes",
@@ -225,6 +231,57 @@ def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
     return res, busy
 
 
+@dataclass(frozen=True)
+class Job:
+    """One step of a campaign as its stage declares it: what it needs, what it makes, and
+    what kind of work it is; :meth:`CampaignExecutor.pipeline` decides when and where it runs.
+
+    Kinds (``kind``):
+
+    ``"stage"``
+        A step of the pipeline proper: ``fn(*needs)`` in the campaign's process, the stages
+        one after the other in the order given.
+    ``"plot"``
+        A figure: ``fn(name, *needs)``, drawn (in the plot process when there is one) once
+        its inputs exist.
+    ``"write"``
+        A write: ``fn(*needs)`` on the I/O thread once its inputs exist; it returns the
+        seconds it took, kept as the timing ``name``.
+    ``"side"``
+        A job off the pipeline's path that needs only what the workers of the next
+        :meth:`~CampaignExecutor.map` inherit (``fn(*needs)``, its inputs given before that
+        map); its output is waited for when a stage needs it.
+
+    Parameters
+    ----------
+    name : str
+        The stage's or the write's timing name, or the plot's name.
+    fn : callable
+    needs : tuple of str
+        The names of ``fn``'s arguments, in order: values given to
+        :meth:`~CampaignExecutor.pipeline` or made by an earlier job.
+    makes : tuple of str
+        The names of what ``fn`` returns (one name: its result; more: its result's items).
+    kind : {"stage", "plot", "write", "side"}
+    heavy : bool
+        A stage that keeps a core busy for a while (the calibrated instrument's budget).
+    timed : bool
+        Time the stage as ``timings[name]`` (not for a stage that times its own parts).
+    """
+
+    name: str
+    fn: Callable[..., Any]
+    needs: tuple[str, ...] = ()
+    makes: tuple[str, ...] = ()
+    kind: Literal["stage", "plot", "write", "side"] = "stage"
+    heavy: bool = False
+    timed: bool = False
+
+
+#: A side job's output not yet waited for (:meth:`CampaignExecutor.pipeline`).
+_PENDING = object()
+
+
 class CampaignExecutor:
     """The machine side of a campaign: BLAS limit, worker pool, I/O thread, plot process.
 
@@ -259,6 +316,10 @@ class CampaignExecutor:
         self._io: Any = None
         self._failed = False
         self._blas_modules = -1
+        self._inner: list[float] = []  # seconds of the stages timed inside the open ones
+        self._inherit: tuple[Callable[[], Any], str] | None = None
+        self._side: Callable[[], Any] | None = None
+        self._mapped = False
 
     # ------------------------------------------------------------------ lifetime
     def __enter__(self) -> CampaignExecutor:
@@ -304,12 +365,18 @@ class CampaignExecutor:
     # ------------------------------------------------------------------ timings
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
-        """Time the enclosed block as ``timings[name]`` (seconds, added up if repeated)."""
+        """Time the enclosed block as ``timings[name]`` (seconds, added up if repeated),
+        without the stages timed inside it (the calibration's without the warm-up)."""
         t = time.perf_counter()
+        self._inner.append(0.0)
         try:
             yield
         finally:
-            self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t
+            dt = time.perf_counter() - t
+            inner = self._inner.pop()
+            if self._inner:
+                self._inner[-1] += dt
+            self.timings[name] = self.timings.get(name, 0.0) + dt - inner
 
     def elapsed(self) -> float:
         """Seconds since the executor was made."""
@@ -338,7 +405,10 @@ class CampaignExecutor:
         result: :meth:`then_result`). With one worker it runs here when its result is
         asked for.
         """
+        if then is None:  # a pipeline's side job (sent before this map)
+            then, self._side = self._side, None
         self._then = then
+        self._mapped = True
         if self.workers == 1 or len(calls) <= 1:
             self._limit_blas()  # (the same sums as in a pool's processes)
             _init_worker(state)
@@ -385,6 +455,7 @@ class CampaignExecutor:
         raised here (after the others are stopped).
         """
         jobs = list(jobs)
+        self._prepare_inherited()
         if self.workers == 1 or len(jobs) <= 1:
             self._limit_blas()  # (the same sums as in forked processes)
             return [job() for job in jobs]
@@ -406,6 +477,25 @@ class CampaignExecutor:
             return out
         finally:
             _shutdown(pool, stop=not ok)  # a job failed or the campaign was interrupted
+
+    @contextlib.contextmanager
+    def inheriting(self, prepare: Callable[[], Any], name: str) -> Iterator[None]:
+        """Within the block, the jobs of :meth:`parallel` need what ``prepare()`` makes in
+        this process (e.g. the instrument's traced geometry and loaded kernels): it runs
+        once, timed as stage ``name``, just before the first of them (which, forked, inherit
+        it), and not at all if none runs. A job begun by :meth:`start` needs none of it and
+        is not kept waiting: the lens's calibration runs while the instrument warms up."""
+        self._inherit = (prepare, name)
+        try:
+            yield
+        finally:
+            self._inherit = None
+
+    def _prepare_inherited(self) -> None:
+        if self._inherit is not None:
+            (prepare, name), self._inherit = self._inherit, None
+            with self.stage(name):
+                prepare()
 
     def start(self, job: Callable[[], Any]) -> Callable[[], Any]:
         """Begin ``job()`` now on a process forked for it (which inherits everything, as
@@ -460,6 +550,29 @@ class CampaignExecutor:
             _shutdown(self._pool, stop=cancel and self._failed, cancel=cancel)
             self._pool = None
 
+    # ------------------------------------------------------------------ pipeline
+    def pipeline(self, jobs: Sequence[Job], **given: Any) -> dict[str, Any]:
+        """Run a campaign's ``jobs`` (:class:`Job`) on the values ``given``; returns every
+        value, given and made.
+
+        The stages run here, one after the other, in the order given. Before each, every
+        other job whose inputs exist is sent on, in the order given: a write to the I/O
+        thread, a side job to the next :meth:`map`'s workers, a plot to :meth:`plot` —
+        beside a ``heavy`` stage only the first of the plots, the rest after it (measured,
+        two cores: with both of the fit's plots beside the calibrated instrument's budget,
+        ~0.4 s of CPU, the budget took 0.59 s and its own plot was drawn alone after it;
+        with one beside it and the other beside the budget's plot, each core does one after
+        the other). After the last stage the rest is sent, then the writes are waited for
+        (no stage waits for the disk; their seconds are timings) and the plots
+        (``timings["plots"]``).
+
+        A stage after the first :meth:`map` runs with every BLAS on one thread
+        (:meth:`blas`: scipy's too, loaded by then, which the fits use); before it the
+        limits of :meth:`_limit_blas` hold, which load nothing (so nothing more is loaded
+        before the workers fork).
+        """
+        return _Pipeline(self, jobs, given).run()
+
     # ------------------------------------------------------------------ I/O thread
     def background(self, fn: Callable[..., Any], *args: Any) -> Any:
         """Run ``fn(*args)`` on the campaign's I/O thread; returns its future."""
@@ -498,6 +611,83 @@ class CampaignExecutor:
         self._close_pool()
         if self._plotter is not None:
             self._plotter.wait()
+
+
+class _Pipeline:
+    """One run of :meth:`CampaignExecutor.pipeline`: the values so far, the jobs not yet
+    sent, the writes' futures."""
+
+    def __init__(self, ex: CampaignExecutor, jobs: Sequence[Job], given: dict[str, Any]):
+        self.ex = ex
+        self.jobs = list(jobs)
+        self.values = dict(given)
+        self.waiting = [j for j in self.jobs if j.kind != "stage"]
+        self.writes: dict[str, Any] = {}
+
+    def run(self) -> dict[str, Any]:
+        ex = self.ex
+        for job in (j for j in self.jobs if j.kind == "stage"):
+            self.send(plots=1 if job.heavy else None)
+            args = [self.value(n) for n in job.needs]
+            with contextlib.ExitStack() as limits:
+                if job.timed:
+                    limits.enter_context(ex.stage(job.name))
+                if ex._mapped:
+                    limits.enter_context(ex.blas())
+                _keep(self.values, job.makes, job.fn(*args))
+        self.send(plots=None)
+        for name, future in self.writes.items():
+            ex.timings[name] = future.result()
+        with ex.stage("plots"):
+            ex.wait_plots()
+        return self.values
+
+    def send(self, *, plots: int | None) -> None:
+        """Send the waiting jobs whose inputs exist (at most ``plots`` plots); consecutive
+        plots of one function and inputs go as one batch (their inputs are sent once)."""
+        batch: list[Job] = []
+        for job in [j for j in self.waiting if all(n in self.values for n in j.needs)]:
+            if job.kind == "plot" and plots is not None and plots <= 0:
+                continue
+            self.waiting.remove(job)
+            if job.kind == "plot":
+                if batch and (batch[0].fn, batch[0].needs) != (job.fn, job.needs):
+                    self.draw(batch)
+                    batch = []
+                batch.append(job)
+                plots = None if plots is None else plots - 1
+                continue
+            self.draw(batch)
+            batch = []
+            args = [self.value(n) for n in job.needs]
+            if job.kind == "write":
+                self.writes[job.name] = self.ex.background(job.fn, *args)
+            else:  # side: the next map's workers run it after its tasks
+                if self.ex._side is not None or len(job.makes) != 1:
+                    raise ValueError(f"side job {job.name!r}: one at a time, making one value")
+                self.ex._side = functools.partial(job.fn, *args)
+                self.values[job.makes[0]] = _PENDING
+        self.draw(batch)
+
+    def draw(self, batch: list[Job]) -> None:
+        if batch:
+            args = [self.value(n) for n in batch[0].needs]
+            self.ex.plot(batch[0].fn, *args, each=[j.name for j in batch])
+
+    def value(self, name: str) -> Any:
+        """A value; a side job's output waited for (run here if no map took it)."""
+        if self.values[name] is _PENDING:
+            side, self.ex._side = self.ex._side, None
+            self.values[name] = side() if side is not None else self.ex.then_result()
+        return self.values[name]
+
+
+def _keep(values: dict[str, Any], makes: tuple[str, ...], out: Any) -> None:
+    """A job's result kept under the names it makes."""
+    if len(makes) == 1:
+        values[makes[0]] = out
+    elif makes:
+        values.update(zip(makes, out, strict=True))
 
 
 def _shutdown(pool: Any, *, stop: bool, cancel: bool | None = None) -> None:

@@ -6,16 +6,20 @@ gonioreflectometer and reads top to bottom:
 1. **prepare** — the plan resolved and validated, the results folder checked and its
    ``plan.json`` written (:mod:`gonio.campaign.folder`), the instrument made;
 2. **capture and reduce** — a realistic simulated instrument's calibration captures and the
-   laboratory's calibration from them first (:func:`_laboratory`, its independent jobs on
+   laboratory's calibration from them first (:func:`_calibration`, its independent jobs on
    the executor's processes), then each incidence angle captured (standard, background, the
    sample at every rotation), saved and reduced to samples (:func:`_incidence`, on the
    executor's worker processes);
-3. **fit** — the plan's model and the compared ones fitted to all samples (:func:`_fit`);
+3. **fit** — the plan's model and the compared ones fitted to all samples (:func:`_fit`),
+   and the uncertainty budget (:func:`_budget`);
 4. **report** — the summary against the truth, ``fit.json``, ``material.rad``, the plots and
    ``summary.json`` (:mod:`gonio.campaign.report`).
 
-How the stages use the machine — worker processes, the plot process, the I/O thread, BLAS
-threads, timings — is :mod:`gonio.campaign.executor`'s business. The results folder's layout
+After the calibration the stages are declared as jobs (:func:`_jobs`): what each needs,
+what it makes, and whether it is a stage, a plot, a write or a side job. How they use the
+machine — when each runs, worker processes, the plot process, the I/O thread, BLAS threads,
+timings — is :mod:`gonio.campaign.executor`'s business
+(:meth:`~gonio.campaign.executor.CampaignExecutor.pipeline`). The results folder's layout
 is described in :mod:`gonio.campaign.folder`. With ``resume=True`` a capture group whose
 ``done.json`` exists is read back instead of being taken again; each capture draws its noise
 from a seed derived from the campaign seed and the capture's name alone
@@ -47,9 +51,15 @@ from typing import Any
 import numpy as np
 
 from gonio.campaign import folder as results
-from gonio.campaign.executor import CampaignExecutor, default_workers, worker_state, write_behind
+from gonio.campaign.executor import (
+    CampaignExecutor,
+    Job,
+    default_workers,
+    worker_state,
+    write_behind,
+)
 from gonio.campaign.folder import Frames, group_key
-from gonio.campaign.knowledge import budget_fields
+from gonio.campaign.knowledge import budget_fields, correct_drift
 from gonio.campaign.plan import (
     DEFAULT_ANGLES_DEG,
     Plan,
@@ -58,7 +68,7 @@ from gonio.campaign.plan import (
     default_plan,
 )
 from gonio.campaign.progress import Progress
-from gonio.campaign.report import CampaignResult, summary_table
+from gonio.campaign.report import CampaignResult, draw, draw_budget, summary_table
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -138,49 +148,19 @@ def _run(
 def _stages(
     setup: _Setup, t_start: float, resume: bool, quiet: bool, stream: Any
 ) -> CampaignResult:
-    """Stages 2-4 of :func:`run` (capture and reduce, fit, report) on a prepared setup."""
+    """Stages 2-4 of :func:`run` on a prepared setup: the laboratory's calibration, then the
+    jobs of :func:`_jobs` (capture and reduce, fit, report), which the executor runs."""
     plan, outp = setup.plan, setup.out
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
-        if plan.calibration is None:  # the calibration captures, on the executor's processes
-            t = time.perf_counter()
-            with Progress(1, "warm-up + calibration", quiet=quiet, stream=stream, min_time=0.0):
-                warm = partial(_warm_up, ex, setup)
-                setup.lab = _laboratory(plan, setup.instrument, outp, ex, warm)
-            if setup.lab is not None:  # (the warm-up, timed on its own, not counted)
-                setup.t_calibration = time.perf_counter() - t - ex.timings.get("warm_up", 0.0)
-        if setup.t_calibration is not None:  # before the capture's workers fork
-            ex.timings["calibration"] = setup.t_calibration
-        # 2. capture and reduce
-        per_angle = _capture_and_reduce(ex, setup, resume, quiet=quiet, stream=stream)
-        if plan.restandard_every:  # the lamp's drift from the re-measured standard
-            from gonio.campaign.knowledge import correct_drift
-
-            correct_drift(per_angle, plan.corrections)
-        samples = _merge(plan, per_angle, ex, saved_raw=setup.raw is not None)
-        ex.timings["capture_reduce_wall"] = time.perf_counter() - t_start
-        _plots(ex, setup, samples, None)  # the hemisphere map needs no fit: drawn meanwhile
-        saved = _save(ex, setup, samples, per_angle)
-        # 3. fit
-        with ex.blas():  # scipy's BLAS on one thread too (it was loaded after the executor)
-            result, compare = _fit(ex, plan, samples, setup.truth, quiet, stream)
-        # the fit's plots: one drawn during the budget, the other beside the budget's (two
-        # beside the budget took a third of its core: plot_order)
-        during, after = _plot_order(setup)
-        _plots(ex, setup, samples, result.model, during)
-        with ex.stage("budget"):  # the GUM budget from the laboratory's knowledge
-            from gonio.campaign.knowledge import campaign_budget
-
-            infos = [i for r in per_angle for i in r.get("infos", [])]
-            budget = campaign_budget(result, samples, setup.lab, corrections=plan.corrections,
-                                     infos=infos, fields=ex.then_result())  # fmt: skip
-        for name, future in saved.items():  # (the budget does not wait for the disk)
-            ex.timings[name] = future.result()
-        # 4. report
-        summary = _report(plan, setup, result, compare, samples, per_angle, budget)
-        with ex.stage("plots"):
-            _plots(ex, setup, samples, result.model, after)
-            _plot_budget(ex, setup, summary.get("budget"))
-            ex.wait_plots()
+        _calibration(ex, setup, quiet, stream)
+        got = ex.pipeline(
+            _jobs(setup, resume, quiet, stream), ex=ex, setup=setup, plan=plan,
+            truth=setup.truth, lab=setup.lab, corrections=plan.corrections, fields=None,
+            t_start=t_start, title=f"{plan.material} ({plan.model})",
+            plots=outp / "plots" if outp is not None else None,
+        )  # fmt: skip
+    samples, result, compare, summary = (got[k] for k in ("samples", "result", "compare",
+                                                          "summary"))  # fmt: skip
     with ex.stage("report"):
         from gonio.campaign.report import write_report
 
@@ -190,6 +170,40 @@ def _stages(
     if outp is not None:
         results.write_json(outp / "summary.json", summary)
     return CampaignResult(plan, outp, samples, result, compare, summary, timings)
+
+
+def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
+    """Stages 2-4 after the calibration as jobs: what each needs and what it makes (the
+    values given by :func:`_stages` or made by an earlier job); the executor decides when
+    each runs (:meth:`~gonio.campaign.executor.CampaignExecutor.pipeline`)."""
+    plan, drawn = setup.plan, setup.out is not None and setup.plan.plots
+    capture = partial(_capture_and_reduce, resume=resume, quiet=quiet, stream=stream)
+    fit = partial(_fit, quiet=quiet, stream=stream)
+    fitted = ("samples", "model", "plots", "title")
+    jobs = [
+        # 2. capture and reduce
+        (True, Job("capture", capture, ("ex", "setup"), ("per_angle",))),
+        (setup.lab is not None,  # the budget's direction fields: the calibration's alone
+         Job("fields", budget_fields, ("lab", "corrections"), ("fields",), kind="side")),
+        (bool(plan.restandard_every),  # the lamp's drift from the re-measured standard
+         Job("drift", correct_drift, ("per_angle", "corrections"))),
+        (True, Job("merge", _merge, ("ex", "setup", "per_angle", "t_start"), ("samples",))),
+        (drawn, Job("hemisphere", _draw_samples, ("samples", "plots", "title"), kind="plot")),
+        (setup.out is not None,
+         Job("save_samples", _save_samples, ("setup", "samples", "per_angle"), kind="write")),
+        (setup.raw is not None, Job("flush_raw", _flush_raw, ("setup", "per_angle"), kind="write")),
+        # 3. fit, and the GUM budget from the laboratory's knowledge
+        (True, Job("fit", fit, ("ex", "plan", "samples", "truth"), ("result", "compare", "model"))),
+        (drawn, Job("incidence_plane", draw, fitted, kind="plot")),
+        (drawn, Job("residuals", draw, fitted, kind="plot")),
+        (True, Job("budget", _budget, ("plan", "lab", "result", "samples", "per_angle", "fields"),
+                   ("budget",), heavy=setup.lab is not None, timed=True)),
+        # 4. report: the summary against the truth (written by _stages) and its plot
+        (True, Job("summary", _report, ("plan", "setup", "result", "compare", "samples",
+                                        "per_angle", "budget"), ("summary",))),
+        (drawn, Job("budget", _draw_budget, ("summary", "plots", "title"), kind="plot")),
+    ]  # fmt: skip
+    return [job for wanted, job in jobs if wanted]
 
 
 # ----------------------------------------------------------------------------- 1. prepare
@@ -237,12 +251,11 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None, warm: Any = None) -> Any:
+def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
-    jobs run by the executor ``ex``, the instrument warmed up by ``warm`` before the
-    captures that need it) and copied to ``OUT/calibration``; None for the ideal
+    jobs run by the executor ``ex``) and copied to ``OUT/calibration``; None for the ideal
     instrument, whose design is its truth."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
@@ -251,7 +264,7 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None, warm: 
         if isinstance(inst, _SimulatedLBL) and lab.lens is not None and lab.mirror is not None:
             _warm(lab, inst.inst)
         return lab
-    if plan.preset == "ideal" or not isinstance(inst, _SimulatedLBL):
+    if not _calibrated(plan, inst):
         return None
     from gonio.campaign.calibrate import laboratory_calibration, specification
 
@@ -259,15 +272,29 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None, warm: 
     lab = laboratory_calibration(
         sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
         certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=ex and ex.parallel, start=ex and ex.start, warm=warm,
+        parallel=ex and ex.parallel, start=ex and ex.start,
     )  # fmt: skip
     _warm(lab, sim)
     return lab
 
 
-def _warm_up(ex: CampaignExecutor, setup: _Setup) -> None:
-    with ex.stage("warm_up"):
-        _warm_instrument(setup)
+def _calibrated(plan: Plan, inst: Any) -> bool:
+    """Whether the instrument is calibrated by the laboratory (a realistic simulated one)."""
+    return plan.preset != "ideal" and isinstance(inst, _SimulatedLBL)
+
+
+def _calibration(ex: CampaignExecutor, setup: _Setup, quiet: bool, stream: Any) -> None:
+    """The laboratory's calibration made from the calibration captures (a realistic
+    simulated instrument without the plan's calibration folder, which :func:`_prepare`
+    read), their jobs forked from the instrument warmed up (:func:`_warm_instrument`)."""
+    plan, inst = setup.plan, setup.instrument
+    if plan.calibration is None and _calibrated(plan, inst):
+        warm = partial(_warm_instrument, setup)
+        bar = Progress(1, "warm-up + calibration", quiet=quiet, stream=stream, min_time=0.0)
+        with bar, ex.stage("calibration"), ex.inheriting(warm, "warm_up"):
+            setup.lab = _laboratory(plan, inst, setup.out, ex)
+    elif setup.t_calibration is not None:
+        ex.timings["calibration"] = setup.t_calibration
 
 
 def _warm_instrument(setup: _Setup) -> None:
@@ -276,9 +303,7 @@ def _warm_instrument(setup: _Setup) -> None:
     forked from this process, inherit them instead of each tracing and loading them anew
     (and the capture's workers after them); the lens's calibration, which needs none of
     it, runs meanwhile."""
-    inst = setup.instrument
-    if isinstance(inst, _SimulatedLBL) and setup.plan.preset != "ideal":
-        inst.prepare(setup.truth, reduce=False)  # (reduced with the calibration, later)
+    setup.instrument.prepare(setup.truth, reduce=False)  # (reduced with the calibration, later)
 
 
 def _warm(lab: Any, sim: Any) -> None:
@@ -455,13 +480,10 @@ def _capture_and_reduce(
     prepare = getattr(setup.instrument, "prepare", None)
     if prepare is not None and isinstance(setup.instrument, _SimulatedLBL):
         prepare = partial(prepare, lab=setup.lab)  # the laboratory's reduction warmed too
-    # the budget's direction fields (of the calibration alone): on a worker, during the fit
-    then = setup.lab and partial(budget_fields, setup.lab, setup.plan.corrections)
     with Progress(len(angles), "capture + reduce", quiet=quiet, stream=stream) as bar:
         for k, res in ex.map(
-            _incidence, calls, state=state, prepare=prepare and (lambda: prepare(setup.truth)),
-            then=then,
-        ):  # fmt: skip
+            _incidence, calls, state=state, prepare=prepare and (lambda: prepare(setup.truth))
+        ):
             out[k] = res
             bar.update(label=f"capture + reduce θi {angles[k]:g}°")
     return out  # type: ignore[return-value]
@@ -574,9 +596,10 @@ def _take_group(
 
 
 def _merge(
-    plan: Plan, per_angle: list[dict[str, Any]], ex: CampaignExecutor, *, saved_raw: bool
+    ex: CampaignExecutor, setup: _Setup, per_angle: list[dict[str, Any]], t_start: float
 ) -> BRDFSamples:
     """All angles' samples in one table (plan order), with the stage times added up."""
+    plan = setup.plan
     tables = [tb for r in per_angle for tb in r["tables"]]
     meta = {"material": plan.material, "instrument": plan.instrument, "mirror": plan.mirror,
             "seed": plan.seed}  # fmt: skip
@@ -585,31 +608,33 @@ def _merge(
     if t_io:
         ex.timings["load_raw"] = t_io
     ex.timings["reduce"] = sum(r["t_reduce"] for r in per_angle)
-    if saved_raw:
-        ex.timings["save_raw_background"] = ex.write_busy_s
-    return BRDFSamples.concatenate(tables, metadata=meta)
-
-
-def _save(
-    ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, per_angle: list[dict[str, Any]]
-) -> dict[str, Any]:
-    """``samples.csv`` written and the raw frames flushed to the disk, on the I/O thread
-    while the fit runs; the futures of their durations by timing name."""
-    out: dict[str, Any] = {}
-    if setup.out is not None:  # rows formatted per angle where they were reduced
-        parts = [p for r in per_angle for p in r["csv_rows"]]
-        out["save_samples"] = ex.background(results.save_samples, setup.out, samples, parts)
     if setup.raw is not None:
-        out["flush_raw"] = ex.background(results.flush_raw, setup.raw)
-    return out
+        ex.timings["save_raw_background"] = ex.write_busy_s
+    samples = BRDFSamples.concatenate(tables, metadata=meta)
+    ex.timings["capture_reduce_wall"] = time.perf_counter() - t_start
+    return samples
+
+
+def _save_samples(setup: _Setup, samples: BRDFSamples, per_angle: list[dict[str, Any]]) -> float:
+    """``samples.csv`` written from the rows formatted per angle where they were reduced;
+    returns the seconds."""
+    parts = [p for r in per_angle for p in r["csv_rows"]]
+    return results.save_samples(setup.out, samples, parts)
+
+
+def _flush_raw(setup: _Setup, per_angle: list[dict[str, Any]]) -> float:
+    """The raw frames of the captures (``per_angle``) flushed to the disk; returns the
+    seconds."""
+    return results.flush_raw(setup.raw)
 
 
 # ----------------------------------------------------------------------------- 3. fit
 def _fit(
     ex: CampaignExecutor, plan: Plan, samples: BRDFSamples, truth_model: Any, quiet: bool,
     stream: Any,
-) -> tuple[Any, dict[str, Any]]:  # fmt: skip
-    """The main fit and the compared models (a compared model that fails is reported)."""
+) -> tuple[Any, dict[str, Any], Any]:  # fmt: skip
+    """The main fit, its model (what the plots draw) and the compared models' fits (a
+    compared model that fails is reported)."""
     from gonio import fit as _fit
 
     bar = Progress(1 + len(plan.compare), f"fit {plan.model}", quiet=quiet, stream=stream,
@@ -628,7 +653,7 @@ def _fit(
                 compare[name] = exc
     bar.update()
     bar.close()
-    return result, compare
+    return result, compare, result.model
 
 
 def _fit_setup(model: str, truth: Any) -> tuple[Any, dict[str, Any]]:
@@ -699,39 +724,26 @@ def _report(
     return summary
 
 
-def _plots(
-    ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any,
-    names: tuple[str, ...] = ("hemisphere",),
-) -> None:  # fmt: skip
-    """The plots ``names`` (with ``model=None`` the hemisphere map, which needs no fit; else
-    of the fitted model), in the plot process, in parallel, when there is one."""
-    from gonio.campaign.report import draw
+def _budget(
+    plan: Plan, lab: Any, result: Any, samples: BRDFSamples, per_angle: list[dict[str, Any]],
+    fields: Any,
+) -> Any:  # fmt: skip
+    """The GUM uncertainty budget from the laboratory's knowledge
+    (:func:`gonio.campaign.knowledge.campaign_budget`; ``fields``: its direction fields,
+    made from the calibration alone)."""
+    from gonio.campaign.knowledge import campaign_budget
 
-    plan = setup.plan
-    if setup.out is None or not plan.plots or not names:
-        return
-    ex.plot(draw, samples, model, setup.out / "plots", f"{plan.material} ({plan.model})",
-            each=names)  # fmt: skip
-
-
-def _plot_order(setup: _Setup) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The fit's two plots: those drawn during the budget, those after it, beside the
-    budget's plot. With a calibrated instrument the budget takes ~0.4 s of CPU: with both
-    plots beside it on two cores it took 0.59 s and its plot was drawn alone after it;
-    with the slower plot (the incidence plane) beside it and the other beside its plot,
-    each core does one after the other. The ideal instrument's budget is the
-    statistical term alone (~0.01 s): all three plots are drawn together."""
-    both = ("incidence_plane", "residuals")
-    return (both[:1], both[1:]) if setup.lab is not None else (both, ())
+    infos = [i for r in per_angle for i in r.get("infos", [])]
+    return campaign_budget(result, samples, lab, corrections=plan.corrections, infos=infos,
+                           fields=fields)  # fmt: skip
 
 
-def _plot_budget(ex: CampaignExecutor, setup: _Setup, budget: Mapping[str, Any] | None) -> None:
-    """``plots/budget.png`` (the statistical row alone for the ideal instrument), drawn
-    after the fit's plots were sent, so that those are drawn during the budget."""
-    from gonio.campaign.report import draw_budget
+def _draw_samples(name: str, samples: BRDFSamples, folder: Path, title: str) -> None:
+    """A plot of the samples alone (the hemisphere map needs no fit): :func:`draw`."""
+    draw(name, samples, None, folder, title)
 
-    plan = setup.plan
-    if setup.out is None or not plan.plots or budget is None:
-        return
-    ex.plot(draw_budget, budget, setup.out / "plots", f"{plan.material} ({plan.model})",
-            each=("budget",))  # fmt: skip
+
+def _draw_budget(name: str, summary: Mapping[str, Any], folder: Path, title: str) -> None:
+    """``plots/budget.png`` (the statistical row alone for the ideal instrument)."""
+    if summary.get("budget") is not None:
+        draw_budget(name, summary["budget"], folder, title)

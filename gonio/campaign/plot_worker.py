@@ -22,6 +22,8 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from gonio.campaign.executor import die_with_parent
+
 __all__ = ["PlotWorker", "warm_matplotlib"]
 
 
@@ -73,9 +75,9 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent
     would take (~0.3 s).
     """
     import signal
-    from multiprocessing.connection import Pipe, wait
+    from multiprocessing.connection import wait
 
-    from gonio.campaign.executor import child_signals, die_with_parent
+    from gonio.campaign.executor import child_signals
 
     # the parent owns this process's lifetime (close(), or EOF when it dies): a Ctrl-C on
     # the terminal reaches the whole process group and would print a traceback from here
@@ -101,35 +103,47 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent
                 if job is None:
                     open_ = False
                     continue
-                fn, args, each = job
-                calls = [args] if each is None else [(v, *args) for v in each]
-                for call in calls:
-                    rd, wr = Pipe(duplex=False)
-                    pid = os.fork()
-                    if pid == 0:  # pragma: no cover - runs in the child
-                        die_with_parent(me)
-                        for inherited in (rd, conn, *children):  # (EOF when the worker dies)
-                            inherited.close()
-                        _run_child(fn, call, wr)
-                    wr.close()
-                    children[rd] = pid
-            else:
+                _fork_jobs(job, conn, children, me)
+                continue
+            res = _reap(r, children.pop(r))
+            if open_:
                 try:
-                    res = r.recv()
-                except (EOFError, OSError):
-                    res = None
-                pid = children.pop(r)
-                r.close()
-                _, status = os.waitpid(pid, 0)
-                if res is None and os.waitstatus_to_exitcode(status) != 0:
-                    res = RuntimeError(
-                        f"a plot job ended with exit code {os.waitstatus_to_exitcode(status)}"
-                    )
-                if open_:
-                    try:
-                        conn.send(res)
-                    except OSError:  # the parent went away: finish the children, then end
-                        open_ = False
+                    conn.send(res)
+                except OSError:  # the parent went away: finish the children, then end
+                    open_ = False
+
+
+def _fork_jobs(job: tuple, conn: Any, children: dict[Any, int], me: int) -> None:
+    """One child per call of the message ``job`` (``(fn, args, each)``), each with a pipe
+    for its result, kept in ``children``."""
+    from multiprocessing.connection import Pipe
+
+    fn, args, each = job
+    calls = [args] if each is None else [(v, *args) for v in each]
+    for call in calls:
+        rd, wr = Pipe(duplex=False)
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - runs in the child
+            die_with_parent(me)
+            for inherited in (rd, conn, *children):  # (EOF when the worker dies)
+                inherited.close()
+            _run_child(fn, call, wr)
+        wr.close()
+        children[rd] = pid
+
+
+def _reap(r: Any, pid: int) -> BaseException | None:
+    """A child's result (``None`` or its exception) from its pipe ``r``, the child reaped;
+    a child that died without one is reported by its exit code."""
+    try:
+        res = r.recv()
+    except (EOFError, OSError):
+        res = None
+    r.close()
+    _, status = os.waitpid(pid, 0)
+    if res is None and os.waitstatus_to_exitcode(status) != 0:
+        res = RuntimeError(f"a plot job ended with exit code {os.waitstatus_to_exitcode(status)}")
+    return res
 
 
 class PlotWorker:

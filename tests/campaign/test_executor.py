@@ -224,3 +224,80 @@ def test_every_blas_is_on_one_thread_in_the_campaign_and_its_children_and_restor
     assert all(j == got["here"] for j in got["jobs"])
     if (os.cpu_count() or 1) > 1:  # the default thread count, restored
         assert all(n > 1 for _, n in got["after"])
+
+
+def _pid_and(value):
+    return value, os.getpid()
+
+
+def _pipeline_jobs(log):
+    Job = executor.Job
+
+    def stage(name, value):
+        log.append(name)
+        return value
+
+    def mapped(ex):
+        return sorted(v for _, v in ex.map(_square, [(1,), (2,)], state={"offset": 0}))
+
+    def plot(name, _):
+        log.append(name)
+
+    return [
+        Job("a", lambda: stage("a", 3), (), ("x",)),
+        Job("side", _pid_and, ("given",), ("pid",), kind="side"),
+        Job("map", mapped, ("ex",), ("squares",)),
+        Job("p1", plot, ("squares",), kind="plot"),
+        Job("w", lambda x: stage("w", 0.25), ("x",), kind="write"),
+        Job("p2", plot, ("squares",), kind="plot"),
+        Job("heavy", lambda x: stage("heavy", x + 1), ("x",), ("y",), heavy=True, timed=True),
+        Job("p3", plot, ("y",), kind="plot"),
+        Job("b", lambda pid, y: stage("b", (pid, y)), ("pid", "y"), ("z",)),
+    ]
+
+
+def test_pipeline_sends_plots_writes_and_a_side_job_once_their_inputs_exist():
+    """Stages run in order; a write and plots are sent once their inputs exist (beside a
+    heavy stage only the first plot, the rest after it); the side job runs behind the
+    map's tasks (on a worker with a pool, here when needed with one worker)."""
+    for workers in (1, 2):
+        log = []
+        with executor.CampaignExecutor(workers) as ex:  # (no plot process: drawn here)
+            got = ex.pipeline(_pipeline_jobs(log), ex=ex, given=7)
+        (value, pid), y = got["z"]
+        assert got["squares"] == [1, 4] and value == 7 and y == 4
+        assert (pid == os.getpid()) == (workers == 1)
+        assert ex.timings["w"] == 0.25 and {"heavy", "plots"} <= set(ex.timings)
+        assert log.index("a") < log.index("p1") < log.index("heavy") < log.index("p2")
+        assert log.index("heavy") < log.index("p3") and "w" in log
+
+
+_MARK: list[int] = []
+
+
+def _marks():
+    return len(_MARK)
+
+
+def test_inheriting_prepares_before_the_parallel_jobs_not_before_a_started_one():
+    """The preparation runs once, before the first parallel jobs (forked: they inherit it),
+    after a job begun by start (which does not); its time is not the enclosing stage's."""
+
+    def prepare():
+        time.sleep(0.05)
+        _MARK.append(1)
+
+    for workers in (1, 2):
+        _MARK.clear()
+        with executor.CampaignExecutor(workers) as ex:
+            t = time.perf_counter()
+            with ex.stage("outer"), ex.inheriting(prepare, "prep"):
+                started = ex.start(_marks)
+                assert _MARK == []
+                got = ex.parallel([_marks, _marks])
+                again = ex.parallel([_marks])
+            wall = time.perf_counter() - t
+            lens = started()
+        assert got == [1, 1] and again == [1] and _MARK == [1]
+        assert lens == (1 if workers == 1 else 0)  # one worker: run here, when asked for
+        assert ex.timings["prep"] >= 0.05 and ex.timings["outer"] + ex.timings["prep"] <= wall
