@@ -844,6 +844,9 @@ def _prepare(
     n_refused = 0
     if fx is not None and corr["footprint"] == "refuse":
         p, n_refused = _refuse_footprint(p, lab, knowledge)
+    from gonio.campaign.determined import cornell_preflight
+
+    cornell_preflight(p, material, lab)  # a plan that cannot determine the model: refused
     outp = Path(out) if out is not None else None
     settings = {
         "material": material,

@@ -39,7 +39,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -203,6 +203,7 @@ class _Setup:
     workers: int
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
     t_calibration: float | None = None  # seconds to make (or read) it
+    warnings: list[str] = field(default_factory=list)  # what the plan will not determine
 
     @property
     def raw(self) -> Path | None:
@@ -228,11 +229,14 @@ def _prepare(
         results.check_out(outp, plan, resume, truth)
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
+    from gonio.campaign.determined import lbl_preflight
+
+    warnings = lbl_preflight(plan, *_fit_setup(plan.model, truth_model))  # refuses a bad plan
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
     t = time.perf_counter()  # a calibration folder is read now (made ones: in the stages)
     lab = _laboratory(plan, inst, outp) if plan.calibration is not None else None
     t_cal = time.perf_counter() - t if lab is not None else None
-    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
+    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings)
 
 
 def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None, warm: Any = None) -> Any:
@@ -679,6 +683,7 @@ def _report(
     n_loaded = sum(r["n_loaded"] for r in per_angle)
     summary = summarise(plan, setup.info, setup.truth, result, compare, samples, n_pixels,
                         n_loaded)  # fmt: skip
+    summary["warnings"][:0] = setup.warnings  # the plan's, before the fit's and budget's
     if budget is not None:
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info

@@ -507,6 +507,10 @@ class FitResult:
     chi2, dof, chi2_dof : float, int, float
         Sum of squared weighted residuals, degrees of freedom (samples − free parameters),
         and their ratio.
+    warnings : list of str
+        The notes appended to ``message`` (a misfit its σ cannot explain, a rank-deficient
+        Jacobian, repeated rows), one sentence each; not in :meth:`to_dict` (they are in
+        ``message``).
     """
 
     model: BRDF
@@ -536,6 +540,7 @@ class FitResult:
     at_bounds: list[str] = field(default_factory=list)
     wavelengths_nm: list[float] | None = None
     time_s: float = 0.0
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def relative_stderr(self) -> dict[str, float]:
@@ -1175,6 +1180,10 @@ def _result(
     ]
     if not np.isfinite(x).all():  # cannot happen with TRF, but never hand back NaN silently
         raise ValueError(f"fit of {_label(p.template)!r} produced non-finite parameters {final}")
+    unbounded = [names[i] for j, i in enumerate(free_idx) if free_inf[j]]
+    notes = [n for n in (_chi2_note(chi2_dof, data.sigma is not None),
+                         _identifiability_note(rank_ok, unbounded), _duplicates_note(data, m))
+             if n]  # fmt: skip
     return FitResult(
         model=models[0],
         models=models,
@@ -1187,10 +1196,7 @@ def _result(
         bounds={n: (float(p.lo[i]), float(p.hi[i])) for i, n in enumerate(names)},
         converged=bool(best.status > 0 and np.isfinite(chi2)),
         identifiable=rank_ok,
-        message=str(best.message)
-        + _chi2_note(chi2_dof, data.sigma is not None)
-        + _identifiability_note(rank_ok, [names[i] for j, i in enumerate(free_idx) if free_inf[j]])
-        + _duplicates_note(data, m),
+        message=str(best.message) + "".join(notes),
         rms=_rms(diff),
         rms_relative=_rms(diff[pos] / data.y[m][pos]) if pos.any() else math.nan,
         chi2=chi2,
@@ -1207,7 +1213,12 @@ def _result(
         at_bounds=at_bounds,
         wavelengths_nm=None if data.wavelengths is None else data.wavelengths.tolist(),
         time_s=time.perf_counter() - t0,
+        warnings=[n.removeprefix(_NOTE) for n in notes],
     )
+
+
+#: How :func:`fit` appends a note to its message.
+_NOTE = "; note: "
 
 
 class _VarPro:

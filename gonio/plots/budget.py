@@ -131,7 +131,13 @@ def plot_budget(budget: Mapping[str, Any], path: str | os.PathLike, *, title: st
     axes = fig.subplots(1, n_p, sharey=True, squeeze=False)[0]
     ys = list(range(len(rows)))[::-1]
     for ax, p in zip(axes, params):
-        vals = [max(r[1][p], 1e-9) for r in rows]
+        uc = budget["combined"][p]
+        if uc is None or not math.isfinite(uc):  # undetermined: no bar has a scale
+            ax.text(0.5, 0.5, "undetermined", transform=ax.transAxes, ha="center", fontsize=9)
+            ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=9, y=1.0)
+            ax.set_xticks([])
+            continue
+        vals = [max(r[1][p], 1e-9) if math.isfinite(r[1][p]) else 1e-9 for r in rows]
         colours = ["0.4" if i == 0 else ("tab:blue" if r[2] else "tab:orange")
                    for i, r in enumerate(rows)]  # fmt: skip
         bars = ax.barh(ys, [100 * v for v in vals], color=colours)
