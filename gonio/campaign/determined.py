@@ -237,14 +237,26 @@ def budget_warnings(budget: Mapping[str, Any], undetermined: Mapping[str, str]) 
 
 
 # ----------------------------------------------------------------------------- the campaigns
-def lbl_preflight(plan: Any, template: Any, fit_kw: Mapping[str, Any]) -> list[str]:
-    """:func:`check_plan` for an LBL plan: the hemisphere seen at each of its incidence
-    angles and sample rotations (:func:`hemisphere_geometries`), for the model the campaign
-    fits (``template`` and ``fit_kw`` of :func:`gonio.campaign.lbl._fit_setup`)."""
+def lbl_preflight(
+    plan: Any, template: Any, fit_kw: Mapping[str, Any], truth: Any = None, instrument: Any = None
+) -> list[str]:
+    """Before an LBL campaign's captures: :func:`check_plan` on the hemisphere seen at each
+    of the plan's incidence angles and sample rotations (:func:`hemisphere_geometries`), for
+    the model the campaign fits (``template`` and ``fit_kw`` of
+    :func:`gonio.campaign.lbl._fit_setup`), then the material's lobe (``truth``) against
+    the instrument's angular resolution
+    (:func:`gonio.campaign.resolution.resolution_warnings`). Returns the warnings."""
+    from gonio.campaign.resolution import lbl_resolution, resolution_warnings
+
     wi, wo = hemisphere_geometries(plan.theta_i_deg, plan.rotations_deg)
     angles = ", ".join(f"{a:g}" for a in plan.theta_i_deg)
-    return check_plan(template, wi, wo, fixed=fit_kw.get("fixed"),
-                      what=f"the plan (incidence {angles} deg)")  # fmt: skip
+    out = check_plan(template, wi, wo, fixed=fit_kw.get("fixed"),
+                     what=f"the plan (incidence {angles} deg)")  # fmt: skip
+    res = lbl_resolution(plan, instrument) if truth is not None else None
+    if res is not None:
+        theta = math.radians(float(np.median(plan.theta_i_deg)))
+        out += resolution_warnings(truth, template, res, theta)
+    return out
 
 
 def cornell_preflight(plan: Any, material: str, config: Any) -> list[str]:

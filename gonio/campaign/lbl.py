@@ -229,10 +229,10 @@ def _prepare(
         results.check_out(outp, plan, resume, truth)
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
-    from gonio.campaign.determined import lbl_preflight
-
-    warnings = lbl_preflight(plan, *_fit_setup(plan.model, truth_model))  # refuses a bad plan
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
+    from gonio.campaign.determined import lbl_preflight  # refuses a plan, warns (resolution)
+
+    warnings = lbl_preflight(plan, *_fit_setup(plan.model, truth_model), truth_model, inst)
     t = time.perf_counter()  # a calibration folder is read now (made ones: in the stages)
     lab = _laboratory(plan, inst, outp) if plan.calibration is not None else None
     t_cal = time.perf_counter() - t if lab is not None else None

@@ -93,14 +93,16 @@ def test_wall_plaster_ward_names_the_vanished_lobe():
     assert s["fit_status"].startswith("converged, but chi2/dof")
 
 
-def test_a_mirror_the_model_cannot_describe_is_not_plainly_converged():
-    """`--material neumann_fig12_silver_mirror`: "converged" at chi2/dof 3e6 with no word."""
+def test_a_near_perfect_mirror_is_measured_not_lost_from_its_start():
+    """`--material neumann_fig12_silver_mirror`: "converged", n = 0.37 against 5000, chi2/dof
+    3e6 and no warning. The lobe (half width 0.98 deg) is resolved (0.29 deg on the modern
+    instrument, 0.79 deg with Ward's digitiser); the fit had run downhill from n = 20.
+    With the exponent scanned for the start (gonio.fit.core._guess_exponent) it is found."""
     res = campaign.run(campaign.Plan(**TWO, material="neumann_fig12_silver_mirror"), workers=1)
     s = res.summary
-    assert s["converged"] is True  # the optimiser's own statement, kept
-    assert s["fit_status"].startswith("converged, but chi2/dof")
-    assert any(w.startswith("chi2/dof") for w in s["warnings"])
-    assert "converged, but chi2/dof" in summary_table(s)
+    assert abs(s["fit"]["n"] - 5000.0) / 5000.0 < 0.01
+    assert s["within_expanded"] == {"n": True}
+    assert s["fit_status"] == "converged" and s["warnings"] == []
 
 
 def test_a_cornell_plan_of_one_repeated_geometry_is_refused_before_capture(tmp_path):
