@@ -1091,6 +1091,7 @@ def _report(
     summary["instrument_seed"] = setup.settings["instrument_seed"]
     summary["corrections"] = setup.corrections
     summary["n_refused_footprint"] = setup.settings["n_refused_footprint"]
+    summary["warnings"] = list(res_fit.warnings)  # the fit's notes, one list (issue 35)
     if setup.fx is not None:
         summary["true_effects"] = dict(setup.fx)  # the truth side of the comparison
     if budget:
@@ -1132,6 +1133,7 @@ def summary_text(summary: dict[str, Any]) -> str:
             f"  fit_mode {summary['fit_mode']}, converged {summary['converged']},"
             f" rms {summary['rms']:.4g}"
         )
+    lines += [f"  warning: {w}" for w in summary.get("warnings", [])]
     if summary.get("budget"):
         from gonio.campaign.cornell_budget import budget_text
 
