@@ -75,7 +75,7 @@ def add_budget(summary: dict[str, Any], budget: Any) -> None:
 
     b = budget.to_dict()
     summary["budget"] = b
-    truth = summary.get("truth", {}) if summary.get("model") == summary.get("truth_model") else {}
+    truth = _compared(summary)
     within = {}
     for k, u in b["expanded"].items():
         if k in truth:
@@ -86,6 +86,14 @@ def add_budget(summary: dict[str, Any], budget: Any) -> None:
         if u is None and k not in und:
             und[k] = "its uncertainty budget is not finite"
     summary.setdefault("warnings", []).extend(budget_warnings(b, und))
+
+
+def _compared(summary: Mapping[str, Any]) -> dict[str, float]:
+    """What the fit is compared with: the truth's parameters for the truth's own model,
+    else the reference's (the model's best approximation of the truth), else nothing."""
+    if summary.get("model") == summary.get("truth_model"):
+        return dict(summary.get("truth", {}))
+    return dict((summary.get("reference") or {}).get("params") or {})
 
 
 def _truth_params(truth: Any) -> dict[str, float]:
@@ -168,8 +176,29 @@ def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -
             "fit_status": fit_status(result),
             "undetermined": undetermined(result),
             "warnings": list(getattr(result, "warnings", [])),
+            **_reference(plan, truth, result, samples),
         }
     )
+
+
+def _reference(plan: Plan, truth: Any, result: Any, samples: BRDFSamples) -> dict[str, Any]:
+    """For a model other than the truth's family, ``{"reference": ...}``: the model's best
+    approximation of the truth on the campaign's directions and weights
+    (:func:`gonio.campaign.reference.model_reference`), each parameter's relative error
+    against it; nothing when the model is the truth's."""
+    if plan.model == truth.name:
+        return {}
+    from gonio.campaign.reference import model_reference
+
+    try:
+        ref = model_reference(truth, result, samples)
+    except ValueError as exc:  # a truth the model cannot be fitted to: said, not raised
+        return {"reference": {"error": str(exc)}}
+    ref["relative_error"] = {
+        k: abs(result.params[k] - v) / abs(v) if v else abs(result.params[k])
+        for k, v in ref["params"].items()
+    }
+    return {"reference": ref}
 
 
 def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> Any:
@@ -203,14 +232,16 @@ def summary_table(summary: Mapping[str, Any]) -> str:
     from gonio.cli._common import format_table
 
     rows = []
-    truth = summary.get("truth", {}) if summary["model"] == summary.get("truth_model") else {}
+    truth = _compared(summary)
+    ref = summary.get("reference") or {}
+    rel_err = summary["relative_error"] or ref.get("relative_error") or {}
     und = summary.get("undetermined") or {}
     big_u = (summary.get("budget") or {}).get("expanded", {})
     k = (summary.get("budget") or {}).get("k", 2.0)
     for name, v in summary["fit"].items():
         t = truth.get(name)
         s = summary["stderr"].get(name)
-        rel = summary["relative_error"].get(name)
+        rel = rel_err.get(name)
         u = big_u.get(name)
         if name in und:
             u_txt, vs_u = "undetermined", ""
@@ -241,8 +272,25 @@ def summary_table(summary: Mapping[str, Any]) -> str:
         f"{summary['material']} fitted with {summary['model']}: {status}, "
         f"{summary['n_samples']} samples from {summary['n_pixels']} pixels, "
         f"rms {summary['rms']:.4g} sr^-1",
-        format_table(_COLUMNS[:4] + (f"U (k={k:g})",) + _COLUMNS[4:], rows),
+        format_table(
+            _COLUMNS[:1]
+            + (("reference",) if ref.get("params") else _COLUMNS[1:2])
+            + _COLUMNS[2:4]
+            + (f"U (k={k:g})",)
+            + _COLUMNS[4:],
+            rows,
+        ),
     ]
+    if ref.get("params"):
+        ina = ref["inadequacy"]["fit"]
+        lines.append(
+            f"reference: {summary['model']}'s best approximation of the truth "
+            f"({summary.get('truth_model')}) on these directions and weights; the fitted "
+            f"BRDF against the true one: rms {100 * (ina['rms_relative'] or 0):.3g} %, worst "
+            f"{100 * (ina['worst_relative'] or 0):.3g} % over {ina['n_directions']} directions"
+        )
+    elif ref.get("error"):
+        lines.append(f"reference: none ({ref['error']})")
     for name, why in und.items():
         lines.append(f"undetermined: {name}: {why}")
     for w in summary.get("warnings") or []:

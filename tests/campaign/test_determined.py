@@ -47,7 +47,8 @@ def test_an_unidentifiable_sum_is_reported_undetermined_and_every_output_written
     assert set(s["undetermined"]) == {"lambert.rho", "lambert#2.rho"}
     assert "only a combination with lambert#2.rho" in s["undetermined"]["lambert.rho"]
     assert s["budget"]["expanded"] == {"lambert.rho": None, "lambert#2.rho": None}
-    assert s["within_expanded"] == {}  # another model than the truth's: no truth to cover
+    # another family than the truth's: compared with its reference, but undetermined
+    assert s["within_expanded"] == {"lambert.rho": None, "lambert#2.rho": None}
     for f in ("samples.csv", "fit.json", "material.rad", s["files"]["radiance_cal"],
               "plots/budget.png", "plots/residuals.png"):  # fmt: skip
         assert (out / f).is_file(), f
@@ -134,3 +135,19 @@ def test_effect_units_are_readable():
     assert effect_u(0.00112, "1/h") == "0.112 %/h"
     assert effect_u(0.000269, "rad") == "0.269 mrad"
     assert effect_u(4.28e-06, "rad²") == "(2.07 mrad)²"
+
+
+def test_a_fit_of_another_family_is_judged_against_its_reference():
+    """`--material white_sand --model ward` (Oren-Nayar data, a Ward fit): the parameters
+    against the model's best approximation of the truth, and the BRDF-space inadequacy."""
+    res = campaign.run(campaign.Plan(**TWO, material="white_sand", model="ward"), workers=1)
+    s = res.summary
+    ref = s["reference"]
+    assert set(ref["params"]) == {"rho_d", "rho_s", "alpha_x", "alpha_y"}
+    # with the ideal instrument the fit and its reference differ by noise only
+    assert abs(s["fit"]["rho_d"] - ref["params"]["rho_d"]) < s["budget"]["expanded"]["rho_d"]
+    assert s["within_expanded"]["rho_d"] is True  # coverage is against the reference
+    ina = ref["inadequacy"]["fit"]
+    assert 0.05 < ina["rms_relative"] < ina["worst_relative"]  # Ward cannot be Oren-Nayar
+    assert "reference: ward's best approximation of the truth (oren_nayar)" in summary_table(s)
+    json.dumps(s, allow_nan=False)
