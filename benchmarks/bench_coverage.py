@@ -190,7 +190,18 @@ def table(results: list[dict[str, Any]]) -> str:
         f"{'flag':>4s}"
     )
     lines = [head, "-" * len(head)]
-    for key, rs in by.items():
+
+    def order(key: str) -> tuple:
+        r = json.loads(key)
+        return (
+            r["instrument"],
+            r["preset"],
+            r.get("plan", ""),
+            r["family"],
+            r["model"] != "default",
+        )
+
+    for key, rs in sorted(by.items(), key=lambda kv: order(kv[0])):
         row = json.loads(key)
         ok = [r["metrics"] for r in rs if not r["metrics"].get("crash")]
         per: dict[str, list[tuple[float, float | None, float]]] = defaultdict(list)

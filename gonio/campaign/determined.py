@@ -209,15 +209,19 @@ def finite(obj: Any) -> Any:
 def fit_status(result: Any) -> str:
     """How the fit ended, in words: ``"converged"`` only when the optimiser stopped on a
     tolerance *and* the misfit is one the samples' σ can explain; a χ²/dof above
-    :data:`gonio.fit.core.CHI2_NOTE` says the model cannot describe the data."""
+    :data:`gonio.fit.core.CHI2_NOTE` says the model does not describe the data within
+    their noise."""
     from gonio.fit.core import CHI2_NOTE
 
     if not result.converged:
         return "NOT converged"
     c = result.chi2_dof
     if math.isfinite(c) and c > CHI2_NOTE and any("chi2/dof" in w for w in result.warnings):
-        return (f"converged, but chi2/dof = {c:.3g}: the model cannot describe the data "
-                "(or the fit found a local minimum)")  # fmt: skip
+        return (
+            f"converged, but chi2/dof = {c:.3g}: the model does not describe the data within "
+            "their noise (a model that cannot describe them, instrument effects the "
+            "reduction left, or a local minimum)"
+        )
     return "converged"
 
 
