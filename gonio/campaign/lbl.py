@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -140,6 +141,8 @@ def _stages(
 ) -> CampaignResult:
     """Stages 2-4 of :func:`run` (capture and reduce, fit, report) on a prepared setup."""
     plan, outp = setup.plan, setup.out
+    for w in () if quiet else setup.warnings:  # what the plan will not determine: said first
+        print(f"warning: {w}", file=stream if stream is not None else sys.stderr, flush=True)
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         if plan.calibration is None:  # the calibration captures, on the executor's processes
             t = time.perf_counter()

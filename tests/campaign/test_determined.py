@@ -151,3 +151,17 @@ def test_a_fit_of_another_family_is_judged_against_its_reference():
     assert 0.05 < ina["rms_relative"] < ina["worst_relative"]  # Ward cannot be Oren-Nayar
     assert "reference: ward's best approximation of the truth (oren_nayar)" in summary_table(s)
     json.dumps(s, allow_nan=False)
+
+
+def test_the_plan_warnings_are_said_before_any_capture():
+    import io
+
+    class _Refusing:  # an instrument that takes nothing: any capture fails the campaign
+        def shoot(self, *args):
+            raise RuntimeError("no capture")
+
+    buf = io.StringIO()
+    with pytest.raises(RuntimeError, match="no capture"):
+        campaign.run(campaign.Plan(**TWO, model="lambert+lambert"), quiet=False, stream=buf,
+                     instrument=_Refusing())  # fmt: skip
+    assert buf.getvalue().startswith("warning: the model's parameters lambert.rho")
