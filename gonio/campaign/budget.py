@@ -54,6 +54,7 @@ __all__ = [
     "Term",
     "budget_table",
     "build_budget",
+    "effect_u",
 ]
 
 #: GUM coverage factor of the expanded uncertainty (about 95 % for a normal distribution)
@@ -252,20 +253,25 @@ class Budget:
     correlation: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form (the ``budget`` entry of a campaign's ``summary.json``)."""
-        return {
-            "method": f"GUM (JCGM 100:2008) linearised propagation, k = {self.k:g}",
-            "k": self.k,
-            "params": dict(self.params),
-            "statistical": dict(self.statistical),
-            "terms": {t.name: t.to_dict() for t in self.terms},
-            "combined": dict(self.combined),
-            "expanded": dict(self.expanded),
-            "correlation": {
-                "params": list(self.params),
-                "matrix": np.round(self.correlation, 6).tolist(),
-            },
-        }
+        """JSON-ready form (the ``budget`` entry of a campaign's ``summary.json``); an
+        undetermined parameter's infinite uncertainties (and NaN correlations) are ``None``."""
+        from gonio.campaign.determined import finite
+
+        return finite(
+            {
+                "method": f"GUM (JCGM 100:2008) linearised propagation, k = {self.k:g}",
+                "k": self.k,
+                "params": dict(self.params),
+                "statistical": dict(self.statistical),
+                "terms": {t.name: t.to_dict() for t in self.terms},
+                "combined": dict(self.combined),
+                "expanded": dict(self.expanded),
+                "correlation": {
+                    "params": list(self.params),
+                    "matrix": np.round(self.correlation, 6).tolist(),
+                },
+            }
+        )
 
 
 def build_budget(
@@ -343,7 +349,11 @@ def build_budget(
 
 
 def budget_table(budget: Mapping[str, Any]) -> str:
-    """The printed budget: one row per source, one column per parameter (relative, %)."""
+    """The printed budget: one row per source, one column per parameter (relative, %).
+
+    Every row but the last is a standard uncertainty (k = 1); the last is the expanded
+    uncertainty ``U = k u_c``. An undetermined parameter (its uncertainty ``None`` or not
+    finite) reads "undetermined"."""
     from gonio.cli._common import format_table
 
     params = budget["params"]
@@ -351,15 +361,32 @@ def budget_table(budget: Mapping[str, Any]) -> str:
 
     def rel(v: float | None, n: str) -> str:
         if v is None or not math.isfinite(v):
-            return "inf"
+            return "undetermined"
         p = params[n]
         return f"{100 * v / abs(p):.3g}%" if p else f"{v:.3g}"
 
     rows = [("statistical (fit)", "", *[rel(budget["statistical"][n], n) for n in names])]
     for tname, t in budget["terms"].items():
-        tag = f"{t['u']:.3g} {t['unit']}" + ("" if t.get("corrected", True) else " (uncorr.)")
+        tag = effect_u(t["u"], t["unit"]) + ("" if t.get("corrected", True) else " (uncorr.)")
         rows.append((tname, tag, *[rel(t["contribution"][n], n) for n in names]))
-    rows.append(("combined u_c", "", *[rel(budget["combined"][n], n) for n in names]))
+    rows.append(("combined u_c (k=1)", "", *[rel(budget["combined"][n], n) for n in names]))
     k = budget.get("k", COVERAGE_FACTOR)
     rows.append((f"expanded U (k={k:g})", "", *[rel(budget["expanded"][n], n) for n in names]))
-    return format_table(("source", "u (effect)", *names), rows)
+    return format_table(("source (u: k=1)", "u (effect)", *names), rows)
+
+
+def effect_u(u: float, unit: str) -> str:
+    """An effect's standard uncertainty with a readable unit: a relative one (unit ``"1"``)
+    in per cent, angles in mrad, a variance of angle (``"rad²"``) as its root in mrad,
+    others as given."""
+    if unit in ("1", ""):
+        return f"{100 * u:.3g} %"
+    if unit == "1/h":
+        return f"{100 * u:.3g} %/h"
+    if unit == "rad":
+        return f"{1e3 * u:.3g} mrad"
+    if unit in ("rad²", "rad^2"):
+        return f"({1e3 * math.sqrt(u):.3g} mrad)²"
+    if unit == "σ":
+        return f"{u:.3g} σ (calibration)"
+    return f"{u:.3g} {unit}"

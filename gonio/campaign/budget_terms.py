@@ -40,6 +40,10 @@ Type B evaluation from the maker's data). Their physics, in the form the reducti
     An image blur of angular RMS ``σ`` per axis (pixel area, diffraction) changes a smooth
     BRDF by ``δy = ½ σ² ∇²f`` (second order of the Gaussian average; the Laplacian on the
     sphere from the fitted model).
+``digitiser``
+    Images reduced to fewer pixels than the camera's (Ward's 108 × 80): each is the area
+    average of a box of camera pixels, a blur of ``(b² − 1)/12`` pixels² per axis beyond
+    the pixel's own (:func:`digitiser_term`).
 
 References
 ----------
@@ -69,6 +73,7 @@ __all__ = [
     "capture_groups",
     "certificate_shapes",
     "certificate_terms",
+    "digitiser_term",
     "direction_fields",
     "direction_terms",
     "exposure_terms",
@@ -304,6 +309,50 @@ def blur_term(samples: Any, model: Any, sigma_rad: float, name: str = "blur") ->
         lap += (fp + fm - 2.0 * f0) / (h * h)
     return [Perturbation(name, sigma_rad**2, "rad²", 0.5 * lap, corrected=False,
                          note="image blur: ½ σ² ∇²f")]  # fmt: skip
+
+
+def digitiser_term(
+    samples: Any, model: Any, lens: Any, image_shapes: Any, name: str = "digitiser"
+) -> list[Perturbation]:
+    """The digitiser's area average, a blur the point-spread model does not hold.
+
+    Ward's images were "reduced before data reduction to a resolution of 108 by 80 pixels"
+    (Ward 1992, §3): each digitised pixel is the mean of a box of ``bx × by`` camera pixels
+    (``bx`` = the calibrated lens's width over the image's, ``by`` likewise). Beyond one
+    camera pixel's own area (in the point-spread model), the box adds ``(b² − 1)/12``
+    pixels² of variance per axis (a discrete uniform average of ``b`` pixel centres), i.e.
+    an angular RMS ``σ = √((b̄² − 1)/12) / f_x`` with ``f_x`` the lens's pixels per radian
+    and ``b̄² = (bx² + by²)/2``; the samples change by ``½ σ² ∇²f`` (:func:`blur_term`).
+    Uncorrected. None for full-resolution images.
+
+    Parameters
+    ----------
+    samples, model
+        The samples and the fitted model.
+    lens : FisheyeLens
+        The calibrated lens at the camera's full resolution.
+    image_shapes : iterable of (height, width)
+        The shapes of the images the samples were reduced from.
+
+    References
+    ----------
+    .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer
+       Graphics (Proc. SIGGRAPH '92) 26(2), 265-272, 1992, §3 (the 108 × 80 images).
+    """
+    shapes = {tuple(int(x) for x in s) for s in image_shapes if s is not None}
+    if lens is None or len(shapes) != 1:
+        return []
+    h, w = shapes.pop()
+    bx, by = float(lens.width) / w, float(lens.height) / h
+    var_px = ((bx * bx + by * by) / 2.0 - 1.0) / 12.0
+    if not var_px > 1e-12:
+        return []
+    terms = blur_term(samples, model, math.sqrt(var_px) / float(lens.fx), name)
+    return [
+        Perturbation(t.name, t.u, t.unit, t.dy, corrected=False,
+                     note=f"area average of {bx:.3g} x {by:.3g} camera pixels (Ward 1992, §3)")
+        for t in terms
+    ]  # fmt: skip
 
 
 def _unit(w: NDArray) -> NDArray:

@@ -864,6 +864,9 @@ def _prepare(
     n_refused = 0
     if fx is not None and corr["footprint"] == "refuse":
         p, n_refused = _refuse_footprint(p, lab, knowledge)
+    from gonio.campaign.determined import cornell_preflight
+
+    cornell_preflight(p, material, lab)  # a plan that cannot determine the model: refused
     outp = Path(out) if out is not None else None
     settings = {
         "material": material,
@@ -1108,6 +1111,7 @@ def _report(
     summary["instrument_seed"] = setup.settings["instrument_seed"]
     summary["corrections"] = setup.corrections
     summary["n_refused_footprint"] = setup.settings["n_refused_footprint"]
+    summary["warnings"] = list(res_fit.warnings)  # the fit's notes, one list (issue 35)
     if setup.fx is not None:
         summary["true_effects"] = dict(setup.fx)  # the truth side of the comparison
     if budget:
@@ -1149,6 +1153,7 @@ def summary_text(summary: dict[str, Any]) -> str:
             f"  fit_mode {summary['fit_mode']}, converged {summary['converged']},"
             f" rms {summary['rms']:.4g}"
         )
+    lines += [f"  warning: {w}" for w in summary.get("warnings", [])]
     if summary.get("budget"):
         from gonio.campaign.cornell_budget import budget_text
 

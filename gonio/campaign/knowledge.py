@@ -218,6 +218,7 @@ def reduce_incidence(
         red = reduce_selected(meas, std, bg, rng=seed, debias=debias, **kw)
         info["n_before"] = int(red.stats.get("n_before", len(red.samples)))
         info["n_samples"] = len(red.samples)
+        info["image_shape"] = list(np.asarray(frames[0][0]).shape)  # (a digitiser's binning)
         if restandard and rot in restandard and "drift" in corr:
             info["restandard"] = _restandard(restandard[rot], std, bg, fst, sat)
         clocks = _clocks(meas), _clocks(std)
@@ -396,6 +397,8 @@ def _campaign_budget(
             terms += bt.direction_terms(samples, model, cal, fields)
         sigma = _blur_sigma(cal)
         terms += bt.blur_term(samples, model, sigma)
+        terms += bt.digitiser_term(samples, model, cal.lens_model(),
+                                   [i.get("image_shape") for i in infos])  # fmt: skip
         terms += bt.tilt_terms(samples, model, bt.spec_rms(spec.get("sample_tilt")))
         terms += _lamp(samples, spec, infos, _capture_u(cal, spec, corr, infos))
         r = bt.spec_rms(spec.get("reillumination"))

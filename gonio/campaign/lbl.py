@@ -41,9 +41,10 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,8 @@ def _stages(
     """Stages 2-4 of :func:`run` on a prepared setup: the laboratory's calibration, then the
     jobs of :func:`_jobs` (capture and reduce, fit, report), which the executor runs."""
     plan, outp = setup.plan, setup.out
+    for w in () if quiet else setup.warnings:  # what the plan will not determine: said first
+        print(f"warning: {w}", file=stream if stream is not None else sys.stderr, flush=True)
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
         _calibration(ex, setup, quiet, stream)
         got = ex.pipeline(
@@ -219,6 +222,7 @@ class _Setup:
     workers: int
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
     t_calibration: float | None = None  # seconds to make (or read) it
+    warnings: list[str] = field(default_factory=list)  # what the plan will not determine
 
     @property
     def raw(self) -> Path | None:
@@ -245,10 +249,13 @@ def _prepare(
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
+    from gonio.campaign.determined import lbl_preflight  # refuses a plan, warns (resolution)
+
+    warnings = lbl_preflight(plan, *_fit_setup(plan.model, truth_model), truth_model, inst)
     t = time.perf_counter()  # a calibration folder is read now (made ones: in the stages)
     lab = _laboratory(plan, inst, outp) if plan.calibration is not None else None
     t_cal = time.perf_counter() - t if lab is not None else None
-    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal)
+    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings)
 
 
 def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any:
@@ -706,6 +713,7 @@ def _report(
     n_loaded = sum(r["n_loaded"] for r in per_angle)
     summary = summarise(plan, setup.info, setup.truth, result, compare, samples, n_pixels,
                         n_loaded)  # fmt: skip
+    summary["warnings"][:0] = setup.warnings  # the plan's, before the fit's and budget's
     if budget is not None:
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info

@@ -67,16 +67,33 @@ def draw_budget(name: str, budget: Mapping[str, Any], folder: Path, title: str) 
 
 def add_budget(summary: dict[str, Any], budget: Any) -> None:
     """The budget (``summary["budget"]``) and, for each fitted parameter with a truth,
-    whether the truth lies within the expanded uncertainty (``within_expanded``) — the
-    budget's check against the truth."""
+    whether the truth lies within the expanded uncertainty (``within_expanded``; ``None``
+    for an undetermined parameter) — the budget's check against the truth. A parameter
+    whose budget is not finite joins ``summary["undetermined"]``, and the budget's
+    warnings join ``summary["warnings"]``."""
+    from gonio.campaign.determined import budget_warnings
+
     b = budget.to_dict()
     summary["budget"] = b
-    truth = summary.get("truth", {}) if summary.get("model") == summary.get("truth_model") else {}
+    truth = _compared(summary)
     within = {}
     for k, u in b["expanded"].items():
         if k in truth:
-            within[k] = bool(abs(summary["fit"][k] - truth[k]) <= u) if math.isfinite(u) else None
+            within[k] = None if u is None else bool(abs(summary["fit"][k] - truth[k]) <= u)
     summary["within_expanded"] = within
+    und = summary.setdefault("undetermined", {})
+    for k, u in b["combined"].items():
+        if u is None and k not in und:
+            und[k] = "its uncertainty budget is not finite"
+    summary.setdefault("warnings", []).extend(budget_warnings(b, und))
+
+
+def _compared(summary: Mapping[str, Any]) -> dict[str, float]:
+    """What the fit is compared with: the truth's parameters for the truth's own model,
+    else the reference's (the model's best approximation of the truth), else nothing."""
+    if summary.get("model") == summary.get("truth_model"):
+        return dict(summary.get("truth", {}))
+    return dict((summary.get("reference") or {}).get("params") or {})
 
 
 def _truth_params(truth: Any) -> dict[str, float]:
@@ -94,6 +111,11 @@ def _truth_params(truth: Any) -> dict[str, float]:
 
 
 def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -> dict:
+    """The summary of a campaign: the fit beside the truth, the undetermined parameters
+    with their reasons (``undetermined``), the fit's warnings (``warnings``) and how the
+    fit ended (``fit_status``); every non-finite number is ``None``."""
+    from gonio.campaign.determined import finite, fit_status, undetermined
+
     truth_p = _truth_params(truth) if plan.model == truth.name else {}
     fitp = {k: float(v) for k, v in result.params.items()}
     stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in result.stderr.items()}
@@ -123,34 +145,60 @@ def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -
                           key=lambda lb: lb[3])  # fmt: skip
 
         extra["lobes"] = {"truth": lobes(truth), "fit": lobes(result.model)}
-    return {
-        **extra,
-        "material": plan.material,
-        "class": info.get("class"),
-        "model": plan.model,
-        "truth_model": truth.name,
-        "truth": _truth_params(truth),
-        "fit": fitp,
-        "stderr": stderr,
-        "relative_error": rel,
-        "within_3_sigma": within,
-        "rms": result.rms,
-        "rms_relative": result.rms_relative,
-        "chi2_dof": result.chi2_dof if math.isfinite(result.chi2_dof) else None,
-        "converged": result.converged,
-        "n_samples": len(samples),
-        "n_pixels": n_pixels,
-        "n_captures": {
-            "incidence_angles": len(plan.theta_i_deg),
-            "rotations": len(plan.rotations_deg),
-            "resumed_groups": n_loaded,
-        },
-        "compare": comp,
-        "seed": plan.seed,
-        "noise": plan.noise,
-        "plan": plan.to_dict(),
-        "files": {"samples": "samples.csv", "fit": "fit.json"},
+    return finite(
+        {
+            **extra,
+            "material": plan.material,
+            "class": info.get("class"),
+            "model": plan.model,
+            "truth_model": truth.name,
+            "truth": _truth_params(truth),
+            "fit": fitp,
+            "stderr": stderr,
+            "relative_error": rel,
+            "within_3_sigma": within,
+            "rms": result.rms,
+            "rms_relative": result.rms_relative,
+            "chi2_dof": result.chi2_dof if math.isfinite(result.chi2_dof) else None,
+            "converged": result.converged,
+            "n_samples": len(samples),
+            "n_pixels": n_pixels,
+            "n_captures": {
+                "incidence_angles": len(plan.theta_i_deg),
+                "rotations": len(plan.rotations_deg),
+                "resumed_groups": n_loaded,
+            },
+            "compare": comp,
+            "seed": plan.seed,
+            "noise": plan.noise,
+            "plan": plan.to_dict(),
+            "files": {"samples": "samples.csv", "fit": "fit.json"},
+            "fit_status": fit_status(result),
+            "undetermined": undetermined(result),
+            "warnings": list(getattr(result, "warnings", [])),
+            **_reference(plan, truth, result, samples),
+        }
+    )
+
+
+def _reference(plan: Plan, truth: Any, result: Any, samples: BRDFSamples) -> dict[str, Any]:
+    """For a model other than the truth's family, ``{"reference": ...}``: the model's best
+    approximation of the truth on the campaign's directions and weights
+    (:func:`gonio.campaign.reference.model_reference`), each parameter's relative error
+    against it; nothing when the model is the truth's."""
+    if plan.model == truth.name:
+        return {}
+    from gonio.campaign.reference import model_reference
+
+    try:
+        ref = model_reference(truth, result, samples)
+    except ValueError as exc:  # a truth the model cannot be fitted to: said, not raised
+        return {"reference": {"error": str(exc)}}
+    ref["relative_error"] = {
+        k: abs(result.params[k] - v) / abs(v) if v else abs(result.params[k])
+        for k, v in ref["params"].items()
     }
+    return {"reference": ref}
 
 
 def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> Any:
@@ -173,39 +221,86 @@ def radiance(plan: Plan, info: Mapping[str, Any], result: Any) -> Any:
         return None
 
 
+#: The parameter table's columns (the expanded uncertainty's is inserted after the fourth).
+_COLUMNS = ("param", "truth", "fit", "rel.err", "|err|/U", "stderr", "pull (err/stderr)")
+
+
 def summary_table(summary: Mapping[str, Any]) -> str:
-    """The short text report: true vs fitted parameters, errors, counts, stage times."""
+    """The short text report: true vs fitted parameters, each error against the expanded
+    uncertainty U (within U or not) beside the statistical pull, the undetermined
+    parameters and every warning, counts, the budget, stage times."""
     from gonio.cli._common import format_table
 
     rows = []
-    truth = summary.get("truth", {})
-    for k, v in summary["fit"].items():
-        t = truth.get(k) if summary["model"] == summary.get("truth_model") else None
-        s = summary["stderr"].get(k)
-        rel = summary["relative_error"].get(k)
+    truth = _compared(summary)
+    ref = summary.get("reference") or {}
+    rel_err = summary["relative_error"] or ref.get("relative_error") or {}
+    und = summary.get("undetermined") or {}
+    big_u = (summary.get("budget") or {}).get("expanded", {})
+    k = (summary.get("budget") or {}).get("k", 2.0)
+    for name, v in summary["fit"].items():
+        t = truth.get(name)
+        s = summary["stderr"].get(name)
+        rel = rel_err.get(name)
+        u = big_u.get(name)
+        if name in und:
+            u_txt, vs_u = "undetermined", ""
+        elif u is None:
+            u_txt, vs_u = "", ""
+        else:
+            u_txt = f"{u:.2g}"
+            vs_u = (
+                ""
+                if t is None or u <= 0
+                else (f"{abs(v - t) / u:.2f} " + ("within" if abs(v - t) <= u else "OUTSIDE"))
+            )
         rows.append(
             (
-                k,
+                name,
                 "" if t is None else f"{t:.5g}",
                 f"{v:.5g}",
-                "" if s is None else f"{s:.2g}",
                 "" if rel is None else f"{100 * rel:.2f}%",
+                u_txt,
+                vs_u,
+                "" if s is None else f"{s:.2g}",
                 "" if t is None or s in (None, 0) else f"{(v - t) / s:+.2f}",
             )
         )
+    status = summary.get("fit_status") or ("converged" if summary["converged"]
+                                           else "NOT converged")  # fmt: skip
     lines = [
-        f"{summary['material']} fitted with {summary['model']}: "
-        f"{'converged' if summary['converged'] else 'NOT converged'}, "
+        f"{summary['material']} fitted with {summary['model']}: {status}, "
         f"{summary['n_samples']} samples from {summary['n_pixels']} pixels, "
         f"rms {summary['rms']:.4g} sr^-1",
-        format_table(("param", "truth", "fit", "stderr", "rel.err", "pull"), rows),
+        format_table(
+            _COLUMNS[:1]
+            + (("reference",) if ref.get("params") else _COLUMNS[1:2])
+            + _COLUMNS[2:4]
+            + (f"U (k={k:g})",)
+            + _COLUMNS[4:],
+            rows,
+        ),
     ]
+    if ref.get("params"):
+        ina = ref["inadequacy"]["fit"]
+        lines.append(
+            f"reference: {summary['model']}'s best approximation of the truth "
+            f"({summary.get('truth_model')}) on these directions and weights; the fitted "
+            f"BRDF against the true one: rms {100 * (ina['rms_relative'] or 0):.3g} %, worst "
+            f"{100 * (ina['worst_relative'] or 0):.3g} % over {ina['n_directions']} directions"
+        )
+    elif ref.get("error"):
+        lines.append(f"reference: none ({ref['error']})")
+    for name, why in und.items():
+        lines.append(f"undetermined: {name}: {why}")
+    for w in summary.get("warnings") or []:
+        lines.append(f"warning: {w}")
     if summary.get("compare"):
         crow = [(summary["model"], f"{summary['rms']:.4g}", summary.get("chi2_dof") or "")]
-        for k, v in summary["compare"].items():
+        for name, v in summary["compare"].items():
             crow.append(
                 (
-                    k,
+                    name,
                     f"{v['rms']:.4g}" if "rms" in v else v.get("error", ""),
                     v.get("chi2_dof") or "",
                 )
@@ -215,7 +310,10 @@ def summary_table(summary: Mapping[str, Any]) -> str:
         from gonio.campaign.budget import budget_table
 
         b = summary["budget"]
-        lines.append(f"uncertainty budget (relative standard uncertainties; GUM, k = {b['k']:g}):")
+        lines.append(
+            "uncertainty budget, relative to each fitted value: every row a standard "
+            f"uncertainty (k = 1) but the last, the expanded uncertainty U = {b['k']:g} u_c:"
+        )
         lines.append(budget_table(b))
     tm = summary.get("timings_s", {})
     lines.append("time (s): " + ", ".join(f"{k} {v:.2f}" for k, v in tm.items()))

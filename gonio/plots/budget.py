@@ -172,14 +172,20 @@ def _draw(budget, params, path, title, dpi) -> Path:
     top = 1e-6
     for p in params:
         pv = abs(budget["params"][p])
-        top = max(top, *(100 * r[1][p] for r in rows if math.isfinite(r[1][p])))
+        top = max([top, *(100 * r[1][p] for r in rows if math.isfinite(r[1][p]))])
         for key in ("combined", "expanded"):
             v = budget[key][p]
             if v is not None and math.isfinite(v) and pv:
                 top = max(top, 100 * v / pv)
     left = max(top * 1e-5, 1e-7)
     for ax, p in zip(axes, params):
-        vals = [max(r[1][p], 1e-9) for r in rows]
+        uc = budget["combined"][p]
+        if uc is None or not math.isfinite(uc):  # undetermined: no bar has a scale
+            ax.text(0.5, 0.5, "undetermined", transform=ax.transAxes, ha="center", fontsize=6.5)
+            ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=6.5, y=1.0)
+            ax.set_xticks([])
+            continue
+        vals = [max(r[1][p], 1e-9) if math.isfinite(r[1][p]) else 1e-9 for r in rows]
         colours = [stat if i == 0 else (corr if r[2] else uncorr) for i, r in enumerate(rows)]
         bars = ax.barh(ys, [100 * v for v in vals], color=colours, height=0.7, lw=0)
         for bar, r in zip(bars, rows):

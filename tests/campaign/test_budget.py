@@ -168,3 +168,27 @@ def test_interpolated_fields_are_the_corner_gather():
         want = np.einsum("nk,nkc->nc", weights, m[corners])
         for c in range(3):
             assert np.array_equal(got[3 * j + c], want[:, c])
+
+
+def test_digitiser_term_is_the_blur_of_its_box():
+    """Ward's 108 x 80 images of a 640 x 480 camera: the box's variance beyond one pixel,
+    (b^2 - 1)/12 px^2 per axis, through the lens's pixels per radian; none at full size."""
+    from types import SimpleNamespace
+
+    from gonio import brdf
+    from gonio.campaign import budget_terms as bt
+    from gonio.campaign.determined import hemisphere_geometries
+    from gonio.samples import BRDFSamples
+
+    wi, wo = hemisphere_geometries((30.0,))
+    model = brdf.create("ward", rho_d=0.1, rho_s=0.3, alpha_x=0.05, alpha_y=0.1)
+    s = BRDFSamples.from_directions(wi, wo, model(wi, wo))
+    lens = SimpleNamespace(width=640, height=480, fx=150.0)
+    assert bt.digitiser_term(s, model, lens, [(480, 640)]) == []
+    (t,) = bt.digitiser_term(s, model, lens, [(80, 108)] * 3)
+    bx, by = 640 / 108, 480 / 80
+    sigma = math.sqrt(((bx**2 + by**2) / 2 - 1) / 12) / 150.0
+    (ref,) = bt.blur_term(s, model, sigma)
+    assert t.name == "digitiser" and not t.corrected
+    assert t.u == pytest.approx(sigma**2) and np.array_equal(t.dy, ref.dy)
+    assert bt.digitiser_term(s, model, lens, [(80, 108), (480, 640)]) == []  # mixed: unknown

@@ -592,3 +592,17 @@ def test_repeated_rows_are_noted():
     assert "repeat" not in once.message
     assert f"note: {len(s)} of {2 * len(s)} rows repeat other rows exactly" in twice.message
     assert twice.stderr["rho_s"] == pytest.approx(once.stderr["rho_s"] / math.sqrt(2), rel=0.02)
+
+
+def test_warnings_are_the_notes_of_the_message():
+    """FitResult.warnings: one sentence per note the message carries (the message and
+    fit.json unchanged)."""
+    from gonio.campaign.determined import hemisphere_geometries
+
+    wi, wo = hemisphere_geometries((20.0, 50.0))
+    y = np.full(len(wi), 0.2)
+    res = fit.fit(BRDFSamples.from_directions(wi, wo, y, np.full(len(wi), 1e-3)),
+                  "lambert+lambert")  # fmt: skip
+    assert len(res.warnings) == 1 and res.warnings[0].startswith("not identifiable")
+    assert res.message.endswith("; note: " + res.warnings[0])
+    assert "warnings" not in res.to_dict()

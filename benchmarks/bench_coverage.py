@@ -1,0 +1,300 @@
+"""The coverage matrix: every instrument preset x material family x fitted model.
+
+Generalises ``bench_budget.py`` (the modern LBL instrument on Ward's table) and
+``bench_cornell_coverage.py`` (the Cornell default) to the cases a new user tries. Rows:
+
+* the LBL presets ``ideal``, ``modern``, ``ward1992`` x one material of every family among
+  the presets (Ward, Li-Torrance, Lafortune, Oren-Nayar, Torrance-Sparrow, Neumann metal
+  and plastic; no preset is a tabulated BRDF) x the family's own model and one other
+  (``ward``; ``cook_torrance`` for a Ward material);
+* the Cornell presets ``ideal``, ``cornell2005`` x the incidence-plane and hemispherical
+  plans x a Li-Torrance material (the Cornell campaign fits ``li_torrance`` only).
+
+Each (row, seed) is one campaign in memory (a different physical instrument of the preset
+and different noise); the fit is compared with the truth, or for another family than the
+truth's with the model's best approximation of it (``summary["reference"]``,
+:mod:`gonio.campaign.reference`). Columns per row: ``n`` campaigns, the coverage of the
+expanded uncertainty U (k = 2) over the determined parameters, the median over parameters of
+U / rms error, the largest |bias| / rms error, crashes (a campaign that raised) and flagged
+campaigns (an undetermined parameter, a resolution warning, or a fit whose chi2/dof says the
+model cannot describe the data). A row is honest with coverage >= 95 % and U/rms <= 3, or
+with its cases flagged.
+
+The campaigns run as tasks of :func:`gonio.campaign.sweep.run_sweep` (``--executor process``
+with ``--workers``, or ``dask``), each in its own folder under ``--root``; a rerun skips the
+finished ones. The plan is small on purpose (``--angles``, rotation 0; the CPU is shared):
+say which n a number covers.
+
+Usage::
+
+    python benchmarks/bench_coverage.py --seeds 2 --workers 2 [--presets modern,ward1992]
+        [--families ward,oren_nayar] [--angles 20,45,70] [--root coverage_runs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+#: one preset material of each family, and the other model fitted to it
+FAMILIES: dict[str, tuple[str, str]] = {
+    "ward": ("rolled_brass", "cook_torrance"),
+    "li_torrance": ("garnet_red_paint", "ward"),
+    "lafortune": ("blue_paint_lafortune", "ward"),
+    "oren_nayar": ("white_sand", "ward"),
+    "torrance_sparrow": ("foam_surface", "ward"),
+    "metal_neumann": ("neumann_fig10_silver_sphere", "ward"),
+    "plastic_neumann": ("neumann_fig13_plastic_1", "ward"),
+}
+LBL_PRESETS = ("ideal", "modern", "ward1992")
+CORNELL_PRESETS = ("ideal", "cornell2005")
+CORNELL_PLANS = ("incidence", "hemispherical")
+CORNELL_MATERIAL = "garnet_red_paint"
+
+
+def rows(presets: list[str], families: list[str], cornell: bool) -> list[dict[str, Any]]:
+    """The matrix's rows as sweep settings."""
+    out = []
+    for p in presets:
+        if p not in LBL_PRESETS:
+            continue
+        for fam in families:
+            mat, other = FAMILIES[fam]
+            for model in ("default", other):
+                out.append(
+                    {
+                        "instrument": "lbl",
+                        "preset": p,
+                        "family": fam,
+                        "material": mat,
+                        "model": model,
+                    }
+                )
+    if cornell:
+        for p in CORNELL_PRESETS:
+            if p not in presets:
+                continue
+            for plan in CORNELL_PLANS:
+                out.append(
+                    {
+                        "instrument": "cornell",
+                        "preset": p,
+                        "family": "li_torrance",
+                        "material": CORNELL_MATERIAL,
+                        "model": "default",
+                        "plan": plan,
+                    }
+                )
+    return out
+
+
+def coverage_task(task: dict[str, Any], out_dir: Path) -> dict[str, Any]:
+    """One campaign of a row (``task["settings"]["row"]``); flat metrics: per parameter
+    ``err:<p>`` (fit - truth or reference), ``U:<p>`` (expanded, absent when undetermined),
+    ``ref:<p>``; and ``crash``, ``flagged``, ``n_undetermined``, ``seconds``."""
+    row = json.loads(task["settings"]["row"])
+    seed = int(task["seed"])
+    t = time.perf_counter()
+    try:
+        s = _cornell(row, seed) if row["instrument"] == "cornell" else _lbl(row, seed, task)
+    except Exception as exc:  # a crash is a result of the matrix, not the end of it
+        (out_dir / "crash.txt").write_text(f"{type(exc).__name__}: {exc}\n")
+        return {"crash": 1, "flagged": 0, "n_undetermined": 0, "seconds": time.perf_counter() - t}
+    m: dict[str, Any] = {"crash": 0, "seconds": time.perf_counter() - t}
+    m.update(s)
+    return m
+
+
+def _lbl(row: dict[str, Any], seed: int, task: dict[str, Any]) -> dict[str, Any]:
+    from gonio.campaign import Plan, run
+
+    angles = tuple(float(a) for a in task["fixed"]["angles"].split(","))
+    kw = {} if row["model"] == "default" else {"model": row["model"]}
+    r = run(
+        Plan(
+            material=row["material"],
+            preset=row["preset"],
+            seed=seed,
+            plots=False,
+            theta_i_deg=angles,
+            rotations_deg=(0.0,),
+            **kw,
+        ),
+        quiet=True,
+        workers=1,
+    )
+    s = r.summary
+    json.dumps(s, allow_nan=False, default=str)  # what the campaign writes (inf: a crash)
+    ref = (
+        s["truth"]
+        if s["model"] == s["truth_model"]
+        else (s.get("reference") or {}).get("params", {})
+    )
+    und = s.get("undetermined") or {}
+    out: dict[str, Any] = {"n_undetermined": len(und)}
+    for k, v in s["fit"].items():
+        if k not in ref or k not in s["budget"]["expanded"]:
+            continue
+        out[f"err:{k}"] = v - ref[k]
+        out[f"ref:{k}"] = ref[k]
+        u = s["budget"]["expanded"][k]
+        if u is not None and k not in und:
+            out[f"U:{k}"] = u
+    warn = " ".join(s.get("warnings") or [])
+    out["flagged"] = int(
+        bool(und)
+        or "narrower than the instrument resolves" in warn
+        or s.get("fit_status", "converged") != "converged"
+    )
+    return out
+
+
+def _cornell(row: dict[str, Any], seed: int) -> dict[str, Any]:
+    from gonio.campaign.cornell import run_cornell_campaign
+
+    effects = None if row["preset"] == "ideal" else row["preset"]
+    s = run_cornell_campaign(row["material"], plan=row["plan"], seed=seed, effects=effects)
+    s.pop("_samples", None)
+    json.dumps(s, allow_nan=False, default=str)  # what the campaign writes (inf: a crash)
+    out: dict[str, Any] = {"n_undetermined": 0}
+    params = (s.get("budget") or {}).get("parameters", {})
+    for k, e in params.items():
+        if k not in s["truth"] or k not in s["fit"]:
+            continue
+        out[f"err:{k}"] = s["fit"][k] - s["truth"][k]
+        out[f"ref:{k}"] = s["truth"][k]
+        u = e.get("U")
+        if u is not None and math.isfinite(u):
+            out[f"U:{k}"] = u
+        else:
+            out["n_undetermined"] += 1
+    out["flagged"] = int(out["n_undetermined"] > 0 or not s.get("converged", True))
+    return out
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    """Per row: n, coverage of U over determined parameters, median U/rms, max |bias|/rms
+    (over the parameters), crashes, flagged."""
+    by: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for r in results:
+        by[r["row"]].append(r)
+    head = (
+        f"{'instrument':8s} {'preset':11s} {'plan':13s} {'material':28s} {'model':14s} "
+        f"{'n':>2s} {'cover':>11s} {'U/rms':>6s} {'|bias|/rms':>10s} {'crash':>5s} "
+        f"{'flag':>4s}"
+    )
+    lines = [head, "-" * len(head)]
+
+    def order(key: str) -> tuple:
+        r = json.loads(key)
+        return (
+            r["instrument"],
+            r["preset"],
+            r.get("plan", ""),
+            r["family"],
+            r["model"] != "default",
+        )
+
+    for key, rs in sorted(by.items(), key=lambda kv: order(kv[0])):
+        row = json.loads(key)
+        ok = [r["metrics"] for r in rs if not r["metrics"].get("crash")]
+        per: dict[str, list[tuple[float, float | None, float]]] = defaultdict(list)
+        for m in ok:
+            for k, v in m.items():
+                if k.startswith("err:"):
+                    p = k[4:]
+                    per[p].append((v, m.get(f"U:{p}"), m[f"ref:{p}"]))
+        n_in = n_det = 0
+        ratios, biases = [], []
+        for vals in per.values():
+            det = [(e, u) for e, u, _ in vals if u is not None]
+            n_det += len(det)
+            n_in += sum(abs(e) <= u for e, u in det)
+            if len(det) >= 2:
+                errs = [e for e, _ in det]
+                rms = math.sqrt(sum(e * e for e in errs) / len(errs))
+                if rms > 0:
+                    ratios.append(statistics.mean(u for _, u in det) / rms)
+                    biases.append(abs(statistics.mean(errs)) / rms)
+        cover = f"{n_in}/{n_det} {100 * n_in / n_det:3.0f}%" if n_det else "-"
+        lines.append(
+            f"{row['instrument']:8s} {row['preset']:11s} {row.get('plan', '-'):13s} "
+            f"{row['material']:28s} {row['model']:14s} {len(rs):2d} {cover:>11s} "
+            f"{statistics.median(ratios) if ratios else float('nan'):6.2f} "
+            f"{max(biases) if biases else float('nan'):10.2f} "
+            f"{sum(r['metrics'].get('crash', 0) for r in rs):5d} "
+            f"{sum(r['metrics'].get('flagged', 0) for r in rs):4d}"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from gonio.campaign.sweep import register_task, run_sweep, spec_from_dict
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", default=",".join(LBL_PRESETS + CORNELL_PRESETS[1:]))
+    ap.add_argument("--families", default=",".join(FAMILIES))
+    ap.add_argument("--no-cornell", action="store_true")
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--angles", default="20,45,70", help="LBL incidence angles (deg)")
+    ap.add_argument("--executor", default="process", choices=("inprocess", "process", "dask"))
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--root", default="coverage_runs")
+    a = ap.parse_args(argv)
+    presets = a.presets.split(",")
+    fams = [f for f in a.families.split(",") if f]
+    unknown = set(fams) - set(FAMILIES)
+    if unknown:
+        ap.error(f"unknown families {sorted(unknown)}; expected some of {list(FAMILIES)}")
+    register_task("coverage_row", coverage_task, metric="crash")
+    grid = [json.dumps(r, sort_keys=True) for r in rows(presets, fams, not a.no_cornell)]
+    spec = spec_from_dict(
+        {
+            "name": "coverage",
+            "task": "coverage_row",
+            "materials": ["-"],
+            "seeds": list(range(a.first_seed, a.first_seed + a.seeds)),
+            "settings": {"row": grid},
+            "fixed": {"angles": a.angles},
+        }
+    )
+    t = time.perf_counter()
+    try:
+        run_sweep(spec, a.root, executor=a.executor, workers=a.workers, plot=False)
+    except Exception as exc:  # TaskFailed keeps the finished ones: read back below
+        print(f"sweep: {type(exc).__name__}: {exc}")
+    seeds = set(spec.seeds)
+    results = [r for r in _read(Path(a.root)) if r["row"] in grid and r["seed"] in seeds]
+    print(
+        f"coverage matrix: {len(results)} campaigns, seeds {a.first_seed}.."
+        f"{a.first_seed + a.seeds - 1}, LBL angles {a.angles} rotation 0, "
+        f"{time.perf_counter() - t:.0f} s on {a.workers} {a.executor} workers"
+    )
+    print(table(results))
+    return 0
+
+
+def _read(root: Path) -> list[dict[str, Any]]:
+    """Every finished task's row and metrics under ``root/tasks``."""
+    out = []
+    for f in sorted((root / "tasks").glob("*/sweep_task.json")):
+        d = json.loads(f.read_text())
+        out.append(
+            {
+                "row": d["task"]["settings"]["row"],
+                "seed": d["task"]["seed"],
+                "metrics": d["metrics"],
+            }
+        )
+    return out
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
