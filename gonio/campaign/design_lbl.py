@@ -50,7 +50,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import tempfile
 import time
 from typing import Any
 
@@ -97,8 +96,9 @@ def lbl_candidates(
         preset=preset, **({"theta_i_deg": tuple(angles_deg)} if angles_deg else {}),
         **({"rotations_deg": tuple(rotations_deg)} if rotations_deg else {}),
     )  # fmt: skip
-    with tempfile.TemporaryDirectory() as tmp:
-        res = campaign.run(plan, tmp, quiet=True, workers=1)
+    # in memory (no folder): no raw frames, samples.csv or calibration files written, the
+    # same samples and budget (compared: the budget's U and every perturbation identical)
+    res = campaign.run(plan, None, quiet=True, workers=1)
     # the budget's inputs as the campaign built it (knowledge.CampaignBudget)
     r, s, perts = res.fit, res.budget.samples, list(res.budget.perturbations)
     if r.residual != "absolute":
