@@ -146,6 +146,7 @@ class _Candidates:
     corrections: dict = dataclasses.field(default_factory=dict)
     model: Any = None
     info: dict = dataclasses.field(default_factory=dict)
+    default: dict | None = None  # the default plan's prediction, made once (_default_prediction)
 
 
 def _prior_points(truth: Any, fitted_shape: list[str], prior: dict) -> list[dict[str, float]]:
@@ -504,7 +505,7 @@ class DesignResult:
     targets: dict[str, float]  # absolute target U per parameter
     predicted: dict[str, dict[str, Any]]  # per parameter: U, stat, floor, dominant, target
     hours: float
-    default: dict[str, Any]  # the default plan: hours and predicted U
+    default: dict[str, Any]  # the default plan: hours and predicted U ({}: not predicted)
     unreachable: dict[str, dict[str, Any]]
     design_s: float
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -512,10 +513,11 @@ class DesignResult:
     def table(self) -> str:
         """The designed plan's predicted U beside the default plan's, one row per parameter
         family (the worst band) and shape parameter."""
+        dflt = (f"; default {self.default['n']} geometries, {self.default['hours']:.2f} h"
+                if self.default else "")  # fmt: skip
         lines = [
             f"{self.material} ({self.instrument}): designed {len(self.plan)} geometries, "
-            f"{self.hours:.2f} h; default {self.default['n']} geometries, "
-            f"{self.default['hours']:.2f} h (real instrument, estimated)",
+            f"{self.hours:.2f} h{dflt} (real instrument, estimated)",
             f"  {'parameter':<14}{'target U':>12}{'designed U':>12}{'default U':>12}"
             f"{'floor':>12}  dominant term",
         ]
@@ -526,7 +528,7 @@ class DesignResult:
             rel = "[" in worst
             label = f"{fam} (worst {worst[len(fam) :]})" if rel else fam
             tgt = self.targets.get(worst)
-            dv = self.default["predicted"].get(worst, {}).get("U", float("nan"))
+            dv = self.default.get("predicted", {}).get(worst, {}).get("U", float("nan"))
 
             def f(x: float | None) -> str:
                 if x is None or not math.isfinite(x):
@@ -611,6 +613,8 @@ def design_cornell(
     refine: int = 3,
     model: Any = None,
     candidates: _Candidates | None = None,
+    compare_default: bool = True,
+    theta_i_deg: tuple = (10, 20, 30, 40, 50, 60, 70, 80),
 ) -> DesignResult:
     """Design a Cornell plan (module docstring). ``targets`` from :func:`parse_targets`
     (default every parameter at 5 %), ``prior`` from :func:`parse_prior`, ``time_limit_h``
@@ -618,6 +622,9 @@ def design_cornell(
     times each target (the achieved U scatters about the prediction with the data's noise);
     ``model``: the prior's values (default the material preset's)
     and tightens the targets the ordered plan's full budget misses, ``refine`` times.
+    ``compare_default``: predict the default plan's budget beside the design's (half of a
+    small design's time; the adaptive campaign, which does not report it, skips it).
+    ``n_grid``, ``theta_i_deg``: the candidate geometries (:func:`cornell_candidates`).
     Raises :class:`DesignError` for a target that is not a fitted parameter, a prior outside
     the model's bounds or a time limit no plan can meet."""
     import time
@@ -630,8 +637,9 @@ def design_cornell(
         truth, names, *_ = _fitted(material, prior, model)
         _check_target_names(tg, names, truth.name)
     c = candidates or cornell_candidates(
-        material, preset=preset, prior=prior, n_grid=n_grid, model=model
-    )
+        material, preset=preset, prior=prior, n_grid=n_grid, model=model,
+        theta_i_deg=tuple(theta_i_deg),
+    )  # fmt: skip
     tabs = _absolute_targets(tg, c)
     P = len(c.names)
     t2 = np.full(P, np.inf)
@@ -666,7 +674,7 @@ def design_cornell(
         if phi > 0 and not chosen.any():
             raise DesignError("no candidate geometry reduces the uncertainty of the targets")
         _prune(states, chosen, c, t2)
-        result = _finish(c, np.flatnonzero(chosen), tabs, unreachable, material)
+        result = _finish(c, np.flatnonzero(chosen), tabs, unreachable, material, compare_default)
         # the budget of the ordered plan has terms the search approximates (the backlash's
         # sides, the stages' noise, the exposure of the polariser put first): tighten the
         # search's targets of the parameters it missed and continue from the plan
@@ -801,9 +809,12 @@ def _dominant(entry: dict[str, Any]) -> str:
     return max(terms, key=lambda n: terms[n])
 
 
-def _finish(c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, material: str):
+def _finish(
+    c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, material: str,
+    compare_default: bool = True,
+) -> DesignResult:  # fmt: skip
     """Order the selection as the campaign will, predict its budget at every prior point
-    (the worst case kept), and the default plan's beside it."""
+    (the worst case kept), and the default plan's beside it (``compare_default``)."""
     from gonio.simulator.cornell_plans import order_plan
 
     sub = c.plan.subset(sel)
@@ -812,7 +823,7 @@ def _finish(c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, materia
     pred, hours = _worst_prediction(c, ordered)
     for p, t in tabs.items():
         pred[p]["target"] = t
-    default = _default_prediction(c)
+    default = _default_prediction(c) if compare_default else {}
     return DesignResult("cornell", material, ordered, dict(tabs), pred, float(hours), default,
                         unreachable, 0.0, {"n_candidates": len(c.plan),
                                            "prior_points": c.prior_points})  # fmt: skip
@@ -850,11 +861,15 @@ def default_cornell_plan(lab: Any, knowledge: dict) -> Any:
 
 
 def _default_prediction(c: _Candidates) -> dict[str, Any]:
-    """The default incidence-plane plan's predicted U and hours."""
-    p = default_cornell_plan(c.lab, c.knowledge)
-    pred, hours = _worst_prediction(c, p)
-    return {"n": len(p), "hours": float(hours),
-            "predicted": {q: {"U": e["U"]} for q, e in pred.items()}}  # fmt: skip
+    """The default incidence-plane plan's predicted U and hours (its budget made once per
+    candidate set: it does not depend on the targets or the search's rounds)."""
+    if c.default is None:
+        p = default_cornell_plan(c.lab, c.knowledge)
+        pred, hours = _worst_prediction(c, p)
+        c.default = {"n": len(p), "hours": float(hours),
+                     "predicted": {q: {"U": e["U"]} for q, e in pred.items()}}  # fmt: skip
+    d = c.default
+    return {**d, "predicted": {q: dict(e) for q, e in d["predicted"].items()}}
 
 
 def write_cornell_plan(path: Any, result: DesignResult) -> None:

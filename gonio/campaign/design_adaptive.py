@@ -82,9 +82,11 @@ def adaptive_cornell(
     preset: str = "cornell2005",
     time_limit_h: float | None = None,
     n_grid: int = 13,
+    theta_i_deg: tuple = (10, 20, 30, 40, 50, 60, 70, 80),
 ) -> dict[str, Any]:
     """Pilot, design, main campaign (module docstring); the summary (also
-    ``out/adaptive.json``). ``n_grid``: the design's candidates (``design_cornell``)."""
+    ``out/adaptive.json``). ``n_grid``, ``theta_i_deg``: the design's candidates
+    (:func:`gonio.campaign.design.cornell_candidates`)."""
     from gonio.campaign import design
     from gonio.campaign.cornell import _write_json, run_cornell_campaign
 
@@ -108,7 +110,8 @@ def adaptive_cornell(
         )
     res = design.design_cornell(
         material, tg, preset=None if preset == "ideal" else preset, prior=prior,
-        time_limit_h=left, model=model, n_grid=n_grid,
+        time_limit_h=left, model=model, n_grid=n_grid, compare_default=False,
+        theta_i_deg=theta_i_deg,
     )  # fmt: skip
     outp.mkdir(parents=True, exist_ok=True)
     plan_file = outp / "designed_plan.csv"

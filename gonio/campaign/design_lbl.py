@@ -50,7 +50,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import tempfile
 import time
 from typing import Any
 
@@ -88,7 +87,6 @@ def lbl_candidates(
     seed: int = 1000,
 ) -> _LBLCandidates:
     """Run the candidate campaign and decompose its budget by capture (module docstring)."""
-    import gonio.campaign.budget as budget_mod
     from gonio import campaign
     from gonio.campaign.budget import Sensitivity
     from gonio.fit import predict
@@ -98,22 +96,11 @@ def lbl_candidates(
         preset=preset, **({"theta_i_deg": tuple(angles_deg)} if angles_deg else {}),
         **({"rotations_deg": tuple(rotations_deg)} if rotations_deg else {}),
     )  # fmt: skip
-    got: dict[str, Any] = {}
-    build = budget_mod.build_budget
-
-    def capture(result: Any, samples: Any, perturbations: Any = (), **kw: Any) -> Any:
-        got.update(result=result, samples=samples, perts=list(perturbations))
-        return build(result, samples, perturbations, **kw)
-
-    budget_mod.build_budget = capture  # the campaign's budget inputs, as it builds them
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            res = campaign.run(plan, tmp, quiet=True, workers=1)
-    finally:
-        budget_mod.build_budget = build
-    if "result" not in got:
-        raise DesignError(f"the candidate campaign of {material!r} made no budget")
-    r, s = got["result"], got["samples"]
+    # in memory (no folder): no raw frames, samples.csv or calibration files written, the
+    # same samples and budget (compared: the budget's U and every perturbation identical)
+    res = campaign.run(plan, None, quiet=True, workers=1)
+    # the budget's inputs as the campaign built it (knowledge.CampaignBudget)
+    r, s, perts = res.fit, res.budget.samples, list(res.budget.perturbations)
     if r.residual != "absolute":
         raise DesignError(f"residual {r.residual!r}: the LBL design covers 'absolute' fits")
     names = list(r.free)
@@ -133,14 +120,14 @@ def lbl_candidates(
     for g in range(ng):
         rows = gid == g
         F[g] = jr[rows].T @ jr[rows]
-    sysp = [p for p in got["perts"] if p.kind == "systematic"]
+    sysp = [p for p in perts if p.kind == "systematic"]
     B = np.zeros((ng, P, len(sysp)))
     for e, p in enumerate(sysp):
         v = jr * (w * p.u * np.nan_to_num(p.dy))[:, None]  # (n, P)
         for j in range(P):
             B[:, j, e] = np.bincount(gid, weights=v[:, j], minlength=ng)
     rand = []
-    for p in got["perts"]:
+    for p in perts:
         if p.kind != "random":
             continue
         v = jr * (w * p.u * np.nan_to_num(p.dy))[:, None]
@@ -152,7 +139,7 @@ def lbl_candidates(
         angles, rots, names, F.reshape(len(angles), len(rots), P, P),
         B.reshape(len(angles), len(rots), P, -1), rand, float(r.cov_scale),
         {k: float(r.params[k]) for k in names}, preset, material,
-        [p.name for p in sysp] + [p.name for p in got["perts"] if p.kind == "random"],
+        [p.name for p in sysp] + [p.name for p in perts if p.kind == "random"],
         dict(res.summary["budget"]["expanded"]),
     )  # fmt: skip
 

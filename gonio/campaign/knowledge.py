@@ -31,21 +31,26 @@ captures with the laboratory's calibration
     lie.
 
 :func:`campaign_budget` then builds the fit's uncertainty budget from the same knowledge
-(:mod:`gonio.campaign.budget`, :mod:`gonio.campaign.budget_terms`).
+(:mod:`gonio.campaign.budget`, :mod:`gonio.campaign.budget_terms`); the
+:class:`CampaignBudget` it returns keeps its inputs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from gonio.campaign.budget import Budget, Perturbation
+
 __all__ = [
     "CORRECTIONS",
     "SENSOR_FIELDS",
     "SIDECAR_FIELDS",
+    "CampaignBudget",
     "budget_fields",
     "campaign_budget",
     "check_corrections",
@@ -336,8 +341,8 @@ def campaign_budget(
     k: float = 2.0,
     fields: list | None = None,
 ):
-    """The GUM budget of a fit from the laboratory's knowledge (see the module docstring of
-    :mod:`gonio.campaign.budget_terms` for each term).
+    """The GUM budget of a fit (a :class:`CampaignBudget`) from the laboratory's knowledge
+    (see the module docstring of :mod:`gonio.campaign.budget_terms` for each term).
 
     With ``cal`` None (the ideal, uncalibrated instrument) only the statistical term is
     there. ``fields``: :func:`budget_fields` of ``cal`` and ``corrections`` if computed
@@ -352,6 +357,17 @@ def campaign_budget(
 
     with SingleThreadBLAS():
         return _campaign_budget(result, samples, cal, corrections, infos, k, fields)
+
+
+@dataclasses.dataclass
+class CampaignBudget(Budget):
+    """A campaign's :class:`~gonio.campaign.budget.Budget` with what it was built from: the
+    fitted samples (as the budget saw them) and every term's
+    :class:`~gonio.campaign.budget.Perturbation` (the fit result is the campaign's); the
+    LBL measurement design decomposes them by capture (:mod:`gonio.campaign.design_lbl`)."""
+
+    samples: Any = None
+    perturbations: tuple[Perturbation, ...] = ()
 
 
 def budget_fields(cal: Any, corrections: Iterable[str] | None = None) -> list:
@@ -406,7 +422,9 @@ def _campaign_budget(
             terms += bt.reillumination_term(samples, model, r, _rho_std(cal, samples),
                                             _lit_fraction(cal, samples))  # fmt: skip
     sens = Sensitivity(result, samples) if terms else None
-    return build_budget(result, samples, terms, sensitivity=sens, k=k)
+    b = build_budget(result, samples, terms, sensitivity=sens, k=k)
+    kept = {f.name: getattr(b, f.name) for f in dataclasses.fields(b)}
+    return CampaignBudget(**kept, samples=samples, perturbations=tuple(terms))
 
 
 def _exposure(samples, cal, spec, corr, infos) -> list:

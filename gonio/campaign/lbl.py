@@ -172,7 +172,15 @@ def _stages(
     summary["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
     if outp is not None:
         results.write_json(outp / "summary.json", summary)
-    return CampaignResult(plan, outp, samples, result, compare, summary, timings)
+    return LBLCampaignResult(plan, outp, samples, result, compare, summary, timings, budget)
+
+
+@dataclass
+class LBLCampaignResult(CampaignResult):
+    """:class:`CampaignResult` with the budget
+    (:class:`~gonio.campaign.knowledge.CampaignBudget`: its inputs too)."""
+
+    budget: Any = None
 
 
 def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:

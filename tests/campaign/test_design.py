@@ -213,9 +213,13 @@ def test_adaptive_campaign_stages(tmp_path):
 
     from gonio.campaign.design_adaptive import adaptive_cornell
 
+    # the design's candidates at two incidence angles (3 x 3 viewing directions each): what is
+    # checked (the prior from the pilot, the stages, achieved U against predicted) does not
+    # depend on how many candidates there are; the pilot's plan is the campaign's own
     s = adaptive_cornell(
-        "garnet_red_paint", d.parse_targets(["tau=2%", "k_dd=5%"]), tmp_path / "a", n_grid=3
-    )
+        "garnet_red_paint", d.parse_targets(["tau=2%", "k_dd=5%"]), tmp_path / "a", n_grid=3,
+        theta_i_deg=(30, 60),
+    )  # fmt: skip
     st = s["stages"]
     assert st["pilot"]["n_geometries"] == 21 and st["pilot"]["real_instrument_h"] > 0
     assert st["main"]["n_geometries"] == st["design"]["n_geometries"]
