@@ -277,5 +277,18 @@ def cornell_preflight(plan: Any, material: str, config: Any) -> list[str]:
     grey = {k: (float(np.mean(v)) if isinstance(v, np.ndarray) else v)
             for k, v in template.params.items()}  # fmt: skip
     wi, wo = forward(plan.angles, config.kinematics)
-    return check_plan(brdf.create("li_torrance", **grey), wi, wo, fixed=list(fixed),
-                      what="the Cornell plan")  # fmt: skip
+    grey_model = brdf.create("li_torrance", **grey)
+    try:
+        return check_plan(grey_model, wi, wo, fixed=list(fixed), what="the Cornell plan")
+    except PlanError:
+        # the grey mean is sufficient, not necessary: tau enters each band through tau /
+        # lambda, so the bands together can separate what one band cannot; a plan the
+        # bands separate runs, any other is refused as the grey check said
+        from gonio.simulator.cornell import BANDS_NM
+
+        try:
+            if not check_plan(template, wi, wo, fixed=list(fixed), wavelength_nm=BANDS_NM):
+                return []
+        except PlanError:
+            pass
+        raise

@@ -162,8 +162,9 @@ def _stages(
             t_start=t_start, title=f"{plan.material} ({plan.model})",
             plots=outp / "plots" if outp is not None else None,
         )  # fmt: skip
-    samples, result, compare, summary = (got[k] for k in ("samples", "result", "compare",
-                                                          "summary"))  # fmt: skip
+    samples, result, compare, summary, budget = (
+        got.get(k) for k in ("samples", "result", "compare", "summary", "budget")
+    )
     with ex.stage("report"):
         from gonio.campaign.report import write_report
 
