@@ -190,6 +190,7 @@ class Plan:
         if len(set(angles)) != len(angles):
             raise ValueError(f"theta_i_deg {self.theta_i_deg!r} has repeated angles")
         rot = self._resolved_rotations(info["params"], model)
+        _distinct_groups(angles, rot)
         exp = self.exposures_s
         if exp is not None:
             exp = tuple(float(e) for e in exp)
@@ -264,6 +265,14 @@ class Plan:
         rot = tuple(float(r) for r in rot)
         if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
             raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")
+        seen: dict[float, float] = {}
+        for r in rot:
+            if (m := r % 360.0) in seen:
+                raise ValueError(
+                    f"rotations_deg {self.rotations_deg!r}: {seen[m]:g} and {r:g} are the same "
+                    "rotation (equal modulo 360)"
+                )
+            seen[m] = r
         return rot
 
     def _resolved_thinning(self) -> tuple[tuple[str, float], ...]:
@@ -321,6 +330,27 @@ class Plan:
         if "thinning" in kw:
             kw["thinning"] = tuple(tuple(x) for x in kw["thinning"])
         return cls(**kw)
+
+
+def _distinct_groups(angles: tuple[float, ...], rotations: tuple[float, ...]) -> None:
+    """Refuse angles (or rotations) that would share a raw group folder: its name keeps
+    θi to 0.01° and a rotation to 0.1° (:func:`gonio.campaign.folder.group_key`), and two
+    captures in one folder would overwrite (or on resume stand in for) one another."""
+    from gonio.campaign.folder import group_key
+
+    for name, values, key, step in (
+        ("theta_i_deg", angles, group_key, "0.01"),
+        ("rotations_deg", rotations, lambda r: group_key(0.0, r), "0.1"),
+    ):
+        seen: dict[str, float] = {}
+        for v in values:
+            k = key(v)
+            if k in seen:
+                raise ValueError(
+                    f"{name}: {seen[k]:g} and {v:g} would share the raw group folder {k!r} "
+                    f"(its name keeps {step}°); expected angles that differ at {step}°"
+                )
+            seen[k] = v
 
 
 def _material_info(material: str, truth: Any = None) -> dict[str, Any]:

@@ -146,6 +146,11 @@ def _output_options(group) -> None:
         help="results directory (default ./campaign_MATERIAL_seedN)",
     )
     group.add_argument("--resume", action="store_true", help="reuse completed captures in DIR")
+    group.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of another plan found in DIR (else refused)",
+    )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
         "--workers",
@@ -219,6 +224,7 @@ _LBL_ONLY = {
     "--workers": ("workers", None),
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
+    "--overwrite": ("overwrite", False),
 }
 _CORNELL_ONLY = {"--plan": ("plan", None), "--through-drivers": ("through_drivers", False)}
 
@@ -308,7 +314,8 @@ def run(args) -> int:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
-    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
+    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers,
+                       overwrite=args.overwrite)  # fmt: skip
     if not args.quiet:
         print(campaign.summary_table(res.summary))
         print(f"results in {res.out}")
