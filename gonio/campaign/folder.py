@@ -306,8 +306,11 @@ def _tidy(outp: Path, plan: Plan) -> None:
         for d in sorted(raw.iterdir()):
             if d.is_dir() and _GROUP.fullmatch(d.name) and d.name not in keys:
                 shutil.rmtree(d)
-    if plan.calibration is not None or plan.preset == "ideal":  # none made: none kept
-        cal = outp / "calibration" / "calibration.json"
+    cal = outp / "calibration" / "calibration.json"
+    given = (
+        plan.calibration is not None and cal.parent.resolve() == Path(plan.calibration).resolve()
+    )
+    if (plan.calibration is not None or plan.preset == "ideal") and not given:  # none made
         cal.unlink(missing_ok=True)
         with contextlib.suppress(OSError):
             cal.parent.rmdir()

@@ -110,6 +110,48 @@ def check_output_dir(text: str, option: str) -> str:
         raise ValueError(f"{option}: {exc}") from None
 
 
+def _same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` name one file: ``os.path.samefile`` when both exist (hard and
+    symbolic links), else their resolved paths."""
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, RuntimeError):  # unreadable, or a symlink loop: compare as written
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _named(paths: Any) -> list[tuple[str, str]]:
+    out = []
+    for label, value in paths.items():
+        vals = value if isinstance(value, list | tuple) else [value]
+        out += [(label, str(v)) for v in vals if v is not None and str(v) != ""]
+    return out
+
+
+def check_outputs(inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
+    """The output-path rule of every command, checked before its work: an output is none of
+    the command's inputs and no two outputs are the same file (``ValueError`` naming both).
+
+    ``inputs`` and ``outputs`` map an option's name (``"--json"``, ``"samples"``) to a
+    path, a list of paths or ``None`` (not given).
+    """
+    ins, outs = _named(inputs), _named(outputs)
+    for k, (olabel, opath) in enumerate(outs):
+        for ilabel, ipath in ins:
+            if _same_path(opath, ipath):
+                raise ValueError(
+                    f"{olabel} {opath!r} is the input {ilabel} {ipath!r}: writing it would "
+                    "replace that input; choose another path"
+                )
+        for olabel2, opath2 in outs[k + 1 :]:
+            if _same_path(opath, opath2):
+                raise ValueError(
+                    f"{olabel} {opath!r} and {olabel2} {opath2!r} are the same file; "
+                    "choose different paths"
+                )
+
+
 def add_json_option(parser) -> None:
     """The ``--json PATH`` option every result-producing subcommand has."""
     parser.add_argument(

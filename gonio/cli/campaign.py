@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import math
 
-from gonio.cli._common import add_json_option, check_output_dir, int_in, output_dir, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_output_dir,
+    check_outputs,
+    int_in,
+    output_dir,
+    write_json,
+)
 
 COMMAND = "campaign"
 HELP = "capture, reduce, fit and report a material on a simulated instrument (LBL or Cornell)"
@@ -314,6 +321,7 @@ def run(args) -> int:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
+    check_outputs({"--calibration": args.calibration}, {"--out": out, "--json": args.json})
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers,
                        overwrite=args.overwrite)  # fmt: skip
     if not args.quiet:

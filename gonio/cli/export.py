@@ -14,10 +14,9 @@ The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import add_json_option, check_outputs, write_json
 
 COMMAND = "export"
 HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
@@ -98,8 +97,12 @@ def _model(args):
     if (args.fit is None) == (args.model is None):
         raise ValueError("material: give either --fit fit.json or --model NAME")
     if args.fit is not None:
-        d = json.loads(Path(args.fit).read_text())
-        name, params = d.get("model"), dict(d.get("params") or {})
+        from gonio.io.jsonfile import get, get_mapping, read_json, require_mapping
+
+        src = f"--fit {args.fit!r}"
+        d = require_mapping(read_json(args.fit), src)
+        name = get(d, "model", src, str)
+        params = dict(get_mapping(d, "params", src, default={}))
         if not isinstance(name, str) or "+" in name:
             raise ValueError(
                 f"--fit {args.fit}: model {name!r}; sums and lobe models are exported "
@@ -129,6 +132,11 @@ def _run(args) -> int:
     from gonio.io import pabopto
 
     up = _vector(args.up)
+    if args.what == "material":
+        inputs, outputs = {"--fit": args.fit}, {"the output folder": args.source}
+    else:
+        inputs, outputs = {"the samples table": args.source}, {"the output folder": args.out}
+    check_outputs(inputs, {**outputs, "--json": args.json})
     report: dict = {"what": args.what}
     if args.what == "material":
         from gonio.io import radiance

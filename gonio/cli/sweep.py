@@ -7,6 +7,7 @@ import sys
 from gonio.cli._common import (
     add_json_option,
     check_output_dir,
+    check_outputs,
     format_table,
     output_dir,
     write_json,
@@ -69,6 +70,7 @@ def run(args) -> int:
 
     from gonio.campaign import sweep
 
+    check_outputs({"spec": args.spec}, {"--out": args.out, "--json": args.json})
     spec = sweep.load_spec(args.spec)
     if args.processes is not None and args.processes < 1:
         raise ValueError(f"--processes must be >= 1, got {args.processes}")
