@@ -21,7 +21,7 @@ Malformed or unreadable files raise :class:`ImageFormatError` (a ``ValueError``)
 
 from __future__ import annotations
 
-import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,10 @@ from numpy.typing import NDArray
 
 __all__ = [
     "IMAGE_SUFFIXES",
+    "RESPONSES",
+    "SIDECAR_SCHEMA",
     "ImageFormatError",
+    "check_sidecar",
     "read_image",
     "read_metadata",
     "sidecar_path",
@@ -50,6 +53,85 @@ _DTYPES = {
 
 class ImageFormatError(ValueError):
     """An image or side-car file that is missing, truncated or not what it claims to be."""
+
+
+#: Response models a side-car's ``response`` may name: ``linear`` (the linear merge, with
+#: ``response_gamma``), ``nonlinear`` (an unknown response recovered from the bracket,
+#: Debevec & Malik 1997).
+RESPONSES = ("linear", "nonlinear")
+
+_INF = float("inf")
+
+#: The side-car fields the reduction reads, and what each may hold: ``(kind, low, high)``
+#: with kind ``"number"`` (finite, never a boolean), ``"integer"``, ``"choice"`` (``low``
+#: the allowed values) or ``"shape"``; ``(low, high)`` is the closed range, ``low`` given as
+#: ``(value,)`` when the bound itself is excluded. The same fields in the ``sensor``,
+#: ``camera`` and ``exposure`` sub-objects (where the reduction also looks) follow it too.
+SIDECAR_SCHEMA: dict[str, tuple[str, Any, Any]] = {
+    **{k: ("number", (0.0,), _INF) for k in ("exposure_s", "exposure_time_s", "exposure_time",
+                                           "f_number", "fnumber", "gain_e_per_dn",
+                                           "gain_e_per_adu", "gain", "response_gamma",
+                                           "pixel_pitch_m", "saturation_dn",
+                                           "white_level_dn", "saturation_adu", "white_level")},
+    **{k: ("number", 0.0, _INF) for k in ("read_noise_e", "read_noise", "dark_current_e_s",
+                                        "black_level_dn", "black_level_adu", "black_level",
+                                        "bias_adu", "time_s", "clock_s")},
+    "exposure": ("number", (0.0,), _INF),
+    "theta_i": ("number", -3.2, 3.2),
+    "phi_i": ("number", -1e4, 1e4),
+    "sample_rotation": ("number", -1e4, 1e4),
+    "rho_standard": ("number", (0.0,), 1.0),
+    "adc_bits": ("integer", 1, 32),
+    "bit_depth": ("integer", 1, 32),
+    "max_dn": ("integer", 1, 2**32 - 1),
+    "response": ("choice", RESPONSES, None),
+    "shape": ("shape", None, None),
+    "dtype": ("choice", ("uint8", "uint16", "float32"), None),
+}  # fmt: skip
+
+
+def _schema_error(src: str, field: str, v: Any, kind: str, lo: Any, hi: Any) -> str | None:
+    if v is None and kind != "choice":
+        return None  # (absent: the reduction's own rule says whether it is needed)
+    if kind == "choice":
+        return None if v is None or (isinstance(v, str) and v in lo) else f"one of {list(lo)}"
+    if kind == "shape":
+        ok = isinstance(v, list) and 2 <= len(v) <= 3 and all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in v)  # fmt: skip
+        return None if ok else "a list of 2 or 3 positive integers"
+    integer = kind == "integer"
+    num = isinstance(v, int) if integer else isinstance(v, int | float)
+    open_lo = isinstance(lo, tuple)
+    low = lo[0] if open_lo else lo
+    ok = num and not isinstance(v, bool) and math.isfinite(v) and v <= hi
+    ok = ok and (v > low if open_lo else v >= low)
+    if ok:
+        return None
+    what = "an integer" if integer else "a number (not a boolean)"
+    rng = f"{'(' if open_lo else '['}{low:g}, {hi:g}]"
+    return f"{what} in {rng}"
+
+
+def check_sidecar(meta: Any, src: str) -> dict[str, Any]:
+    """``meta`` if it is an object whose fields follow :data:`SIDECAR_SCHEMA`, else
+    :class:`ImageFormatError` naming ``src`` (the side-car) and the field."""
+    if not isinstance(meta, dict):
+        raise ImageFormatError(f"side-car {src} must hold a JSON object, got {type(meta).__name__}")
+    scopes = [("", meta)]
+    scopes += [(f"{sub}.", meta[sub]) for sub in ("sensor", "camera", "exposure")
+               if isinstance(meta.get(sub), dict)]  # fmt: skip
+    for prefix, scope in scopes:
+        for field, (kind, lo, hi) in SIDECAR_SCHEMA.items():
+            if field not in scope or (field == "exposure" and not prefix and
+                                      isinstance(scope[field], dict)):  # fmt: skip
+                continue
+            v = scope[field]
+            expected = _schema_error(src, field, v, kind, lo, hi)
+            if expected is not None:
+                raise ImageFormatError(
+                    f"side-car {src}: field {prefix + field!r} is {v!r:.60}, expected {expected}"
+                )
+    return meta
 
 
 def sidecar_path(path: str | os.PathLike) -> Path:
@@ -153,15 +235,13 @@ def read_metadata(path: str | os.PathLike, required: bool = True) -> dict[str, A
         if required:
             raise ImageFormatError(f"side-car {str(sc)!r} of image {str(path)!r} does not exist")
         return {}
+    from gonio.io.jsonfile import read_json
+
     try:
-        meta = json.loads(sc.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ImageFormatError(f"side-car {str(sc)!r} is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict):
-        raise ImageFormatError(
-            f"side-car {str(sc)!r} must hold a JSON object, got {type(meta).__name__}"
-        )
-    return meta
+        meta = read_json(sc)
+    except ValueError as exc:
+        raise ImageFormatError(f"side-car {exc}") from None
+    return check_sidecar(meta, repr(str(sc)))
 
 
 def read_image(
