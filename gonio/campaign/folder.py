@@ -317,14 +317,9 @@ def _tidy(outp: Path, plan: Plan) -> None:
 
 
 def _old_plan(pfile: Path, truth: Any) -> Plan:
-    from gonio.io.jsonfile import read_json, require_mapping
+    from gonio.io.jsonfile import read_document
 
-    src = repr(str(pfile))
-    try:
-        d = require_mapping(read_json(pfile), src)
-        return Plan.from_dict(d).resolved(truth)
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"{src}: unreadable plan ({exc})") from None
+    return read_document(pfile, lambda d: Plan.from_dict(d).resolved(truth), what="a plan")
 
 
 def check_out(

@@ -327,7 +327,7 @@ class Plan:
         if unknown:
             raise ValueError(f"unknown plan field(s) {unknown}; expected some of {sorted(names)}")
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        if "thinning" in kw:
+        if kw.get("thinning") is not None:
             kw["thinning"] = tuple(tuple(x) for x in kw["thinning"])
         return cls(**kw)
 

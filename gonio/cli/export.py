@@ -97,10 +97,10 @@ def _model(args):
     if (args.fit is None) == (args.model is None):
         raise ValueError("material: give either --fit fit.json or --model NAME")
     if args.fit is not None:
-        from gonio.io.jsonfile import get, get_mapping, read_json, require_mapping
+        from gonio.io.jsonfile import get, get_mapping, read_document
 
         src = f"--fit {args.fit!r}"
-        d = require_mapping(read_json(args.fit), src)
+        d = read_document(args.fit, what="a fit.json")
         name = get(d, "model", src, str)
         params = dict(get_mapping(d, "params", src, default={}))
         if not isinstance(name, str) or "+" in name:

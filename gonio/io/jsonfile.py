@@ -28,6 +28,7 @@ __all__ = [
     "get_number",
     "get_str",
     "loads",
+    "read_document",
     "read_json",
     "read_toml",
     "require_mapping",
@@ -77,7 +78,7 @@ def loads(text: str, source: str, max_depth: int = MAX_DEPTH) -> Any:
         raise FileFormatError(f"{source}: not valid JSON ({exc})") from None
 
 
-def _read_text(path: str | os.PathLike) -> str:
+def _read_text(path: str | os.PathLike, kind: str = "JSON") -> str:
     p = Path(path)
     size = p.stat().st_size
     if size > MAX_BYTES:
@@ -85,7 +86,7 @@ def _read_text(path: str | os.PathLike) -> str:
     try:
         return p.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
-        raise FileFormatError(f"{str(p)!r}: not UTF-8 text ({exc.reason})") from None
+        raise FileFormatError(f"{str(p)!r}: not valid {kind} (not UTF-8: {exc.reason})") from None
 
 
 def read_json(path: str | os.PathLike, max_depth: int = MAX_DEPTH) -> Any:
@@ -98,7 +99,7 @@ def read_toml(path: str | os.PathLike, max_depth: int = MAX_DEPTH) -> dict[str, 
     """The TOML document in ``path`` (depth-limited as :func:`read_json`)."""
     import tomllib
 
-    text = _read_text(path)
+    text = _read_text(path, "TOML")
     source = repr(str(path))
     try:
         doc = tomllib.loads(text)
@@ -112,6 +113,43 @@ def read_toml(path: str | os.PathLike, max_depth: int = MAX_DEPTH) -> dict[str, 
         items = obj.values() if isinstance(obj, dict) else obj if isinstance(obj, list) else ()
         stack.extend((v, depth + 1) for v in items if isinstance(v, dict | list))
     return doc
+
+
+def read_document(
+    path: str | os.PathLike, build: Callable[[Mapping[str, Any]], Any] | None = None,
+    *, what: str = "", max_depth: int = MAX_DEPTH,
+) -> Any:  # fmt: skip
+    """A JSON (``.json``) or TOML (``.toml``) object read back from ``path`` and built into
+    a value by ``build`` (the document itself without one): the one entry of every reader.
+
+    Whatever ``build`` raises on a document of the wrong shape (a ``ValueError`` of its own
+    checks, or a ``TypeError``/``KeyError``/``AttributeError``/``IndexError`` from a field of
+    another type than it expects) becomes a one-line :class:`FileFormatError` naming the file
+    (and ``what`` it should hold); ``OSError`` (unreadable file) passes through.
+    """
+    src = f"{what} {str(path)!r}" if what else repr(str(path))
+    reader = read_toml if str(path).lower().endswith(".toml") else read_json
+    try:
+        doc = reader(path, max_depth)
+    except FileFormatError as exc:
+        raise FileFormatError(f"{what} {exc}" if what else str(exc)) from None
+    require_mapping(doc, src)
+    if build is None:
+        return doc
+    try:
+        return build(doc)
+    except ValueError as exc:  # (its own FileFormatError too)
+        text = str(exc) if str(path) in str(exc) else f"{src}: {exc}"
+        raise FileFormatError(_one_line(text)) from None
+    except (TypeError, KeyError, AttributeError, IndexError, OverflowError, RecursionError) as exc:
+        raise FileFormatError(
+            _one_line(f"{src}: a field of the wrong shape ({type(exc).__name__}: {exc})")
+        ) from None
+
+
+def _one_line(text: str, limit: int = 400) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 # ----------------------------------------------------------------------------- shape checks
