@@ -293,8 +293,10 @@ def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
     """Worker processes: as asked (1 for a user's instrument, which may not fork), else
     :func:`~gonio.campaign.executor.default_workers` for the simulated one."""
     if workers is not None:
-        if not isinstance(workers, int | np.integer) or workers < 1:
-            raise ValueError(f"workers {workers!r}: expected a positive integer")
+        from gonio.cli._common import max_workers
+
+        if not isinstance(workers, int | np.integer) or not 1 <= workers <= max_workers():
+            raise ValueError(f"workers {workers!r}: expected an integer in [1, {max_workers()}]")
         return int(workers) if instrument is None else 1
     if instrument is not None:
         return 1

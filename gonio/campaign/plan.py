@@ -179,6 +179,10 @@ class Plan:
 
         info = _material_info(self.material, truth)  # ValueError listing the presets
         model = self.model or info["model"]
+        from gonio.cli._common import check_model_terms
+
+        for m in (model, *(self.compare or ())):
+            check_model_terms(m, "model")
         parse_model(model)  # unknown model -> ValueError listing the registered names
         if self.instrument != "lbl":
             raise ValueError(f"instrument {self.instrument!r}; expected 'lbl'")
@@ -302,15 +306,23 @@ class Plan:
             raise ValueError(f"instrument_seed {iseed!r}: expected a non-negative integer")
         b = self.binning if self.binning is not None else PRESET_OPTIONS[self.preset]["binning"]
         if b is not None:
+            import inspect
+
+            from gonio.simulator import LBLInstrument
+
+            sig = inspect.signature(LBLInstrument).parameters  # the camera's pixels
+            cam = (sig["width"].default, sig["height"].default)
             try:
                 b = tuple(int(x) for x in b)
-                ok = len(b) == 2 and (b == (0, 0) or min(b) >= 1)
+                ok = len(b) == 2 and (b == (0, 0) or (min(b) >= 1 and b[0] <= cam[0]
+                                                      and b[1] <= cam[1]))  # fmt: skip
             except (TypeError, ValueError):
                 ok = False
             if not ok:
                 raise ValueError(
-                    f"binning {self.binning!r}: expected (width, height) >= 1, or (0, 0) for "
-                    "full resolution"
+                    f"binning {self.binning!r}: expected (width, height) from 1 up to the "
+                    f"camera's {cam[0]} x {cam[1]} (a digitiser reduces), or (0, 0) for full "
+                    "resolution"
                 )
         return self.preset, int(iseed), b
 

@@ -102,6 +102,31 @@ def int_in(lower: int, upper: int, why: str = ""):
     return parse
 
 
+#: Most worker processes a command starts: a small multiple of the CPU count (more only adds
+#: memory and start-up time; each process holds its own copy of the instrument).
+WORKERS_PER_CPU = 4
+
+
+def max_workers() -> int:
+    """The most worker processes any command starts (:data:`WORKERS_PER_CPU` per CPU)."""
+    return WORKERS_PER_CPU * (os.cpu_count() or 1)
+
+
+def worker_count(text: str) -> int:
+    """``argparse`` type of a worker/process count: an integer in [1, :func:`max_workers`]."""
+    return int_in(1, max_workers(), f"at most {WORKERS_PER_CPU} per CPU")(text)
+
+
+#: Most terms of a model sum (``"lambert + ward + ..."``): the papers' models have 1-3.
+MAX_MODEL_TERMS = 8
+
+
+def check_model_terms(text: str | None, option: str) -> None:
+    """Refuse a model expression of more than :data:`MAX_MODEL_TERMS` terms."""
+    if text is not None and (n := str(text).count("+") + 1) > MAX_MODEL_TERMS:
+        raise ValueError(f"{option}: {n} terms, at most {MAX_MODEL_TERMS} in a model sum")
+
+
 def check_output_dir(text: str, option: str) -> str:
     """:func:`output_dir` for a path computed after parsing; ``ValueError`` naming ``option``."""
     try:

@@ -8,6 +8,7 @@ from gonio.cli._common import (
     add_json_option,
     check_output_dir,
     check_outputs,
+    worker_count,
     int_in,
     output_dir,
     write_json,
@@ -121,8 +122,8 @@ def _instrument_options(group) -> None:
         "--binning",
         default=None,
         metavar="WxH",
-        help="digitise the LBL images to WxH (default the preset's: 108x80 for ward1992; "
-        "0x0 full resolution)",
+        help="digitise the LBL images to WxH, at most the camera's 640x480 (default the "
+        "preset's: 108x80 for ward1992; 0x0 full resolution)",
     )
     group.add_argument(
         "--corrections",
@@ -161,9 +162,10 @@ def _output_options(group) -> None:
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
         "--workers",
-        type=int,
+        type=worker_count,
         default=None,
-        help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none)",
+        help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none; "
+        "at most 4 per CPU)",
     )
     group.add_argument("--quiet", action="store_true", help="no progress bars, no table")
 

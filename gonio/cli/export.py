@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gonio.cli._common import add_json_option, check_outputs, write_json
+from gonio.cli._common import add_json_option, check_outputs, worker_count, write_json
 
 COMMAND = "export"
 HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
@@ -73,7 +73,9 @@ def add_arguments(parser) -> None:
         help="pabopto2bsdf -s (default: inferred from the incident azimuths)",
     )
     parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
-    parser.add_argument("--nproc", type=int, default=1, help="pabopto2bsdf -n")
+    parser.add_argument(
+        "--nproc", type=worker_count, default=1, help="pabopto2bsdf -n (at most 4 per CPU)"
+    )
     parser.add_argument("--fit", help="fit.json (material): its model and parameters")
     parser.add_argument("--model", help="model name (material, instead of --fit)")
     parser.add_argument(

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, check_outputs, format_table, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_model_terms,
+    check_outputs,
+    format_table,
+    write_json,
+)
 
 COMMAND = "fit"
 HELP = "fit a BRDF model (or a sum 'lambert + ward') to a samples file"
@@ -62,6 +68,7 @@ def run(args) -> int:
     from gonio.io.samples_table import read_samples
 
     check_outputs({"samples": args.samples}, {"--json": args.json})
+    check_model_terms(args.model, "--model")
     samples = read_samples(args.samples)
     fixed = _pairs(args.fixed, "--fixed", need_value=False)
     init = _pairs(args.init, "--init", need_value=True)

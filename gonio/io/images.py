@@ -41,6 +41,10 @@ __all__ = [
     "write_image",
 ]
 
+#: Most pixels of an image read back (4096 x 4096): a few-kB PNG of 12000 x 12000 pixels
+#: would decode to hundreds of MB and every reduction temporary to as much again.
+MAX_PIXELS = 4096 * 4096
+
 #: image file suffixes this module reads and writes
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff")
 
@@ -244,6 +248,33 @@ def read_metadata(path: str | os.PathLike, required: bool = True) -> dict[str, A
     return check_sidecar(meta, repr(str(sc)))
 
 
+def _header_size(head: memoryview) -> tuple[int, int] | None:
+    """(width, height) from a PNG's IHDR or a TIFF's first IFD, read before decoding;
+    ``None`` if the header does not say (the decoder then decides)."""
+    import struct
+
+    head = head.cast("B") if head.format != "B" else head
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24 and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    if head[:4] not in (b"II*\x00", b"MM\x00*") or len(head) < 8:
+        return None
+    e = "<" if head[:2] == b"II" else ">"
+    (ifd,) = struct.unpack(e + "I", head[4:8])
+    if ifd + 2 > len(head):
+        return None
+    (n,) = struct.unpack(e + "H", head[ifd : ifd + 2])
+    dims: dict[int, int] = {}
+    for k in range(n):
+        at = ifd + 2 + 12 * k
+        if at + 12 > len(head):
+            break
+        tag, typ, _count = struct.unpack(e + "HHI", head[at : at + 8])
+        if tag in (256, 257):
+            fmt = e + ("H" if typ == 3 else "I")
+            dims[tag] = struct.unpack(fmt, head[at + 8 : at + 8 + struct.calcsize(fmt)])[0]
+    return (dims[256], dims[257]) if len(dims) == 2 else None
+
+
 def read_image(
     path: str | os.PathLike, *, require_metadata: bool = False
 ) -> tuple[NDArray, dict[str, Any]]:
@@ -269,6 +300,12 @@ def read_image(
     if not path.is_file():
         raise ImageFormatError(f"image file {str(path)!r} does not exist")
     raw = np.fromfile(path, dtype=np.uint8)
+    size = _header_size(memoryview(raw))
+    if size is not None and size[0] * size[1] > MAX_PIXELS:
+        raise ImageFormatError(
+            f"{str(path)!r} is {size[0]} x {size[1]} pixels, more than the {MAX_PIXELS} "
+            "(4096 x 4096) gonio reads"
+        )
     img = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
     if img is None:
         raise ImageFormatError(f"{str(path)!r} is not a readable {suf} image")
