@@ -8,10 +8,11 @@ dependencies inside ``run`` so that ``gonio --help`` and small commands start fa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import pkgutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from gonio import __version__
 
@@ -47,7 +48,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with _terminate_as_interrupt():
+            return int(args._run(args) or 0)
     except ValueError as exc:
         print(f"gonio {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -57,6 +59,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"gonio {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises ``KeyboardInterrupt`` while a command runs, as Ctrl-C does: every
+    command's ``with``/``finally`` blocks then remove its temporaries and ``subprocess.run``
+    kills its running child (``export bsdf``'s ``pabopto2bsdf``), as the campaign does."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def os_error_text(exc: OSError) -> str:
