@@ -34,9 +34,42 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     return atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 
 
+def name_value_pairs(items: Sequence[str], option: str, need_value: bool = True) -> dict:
+    """``NAME=VALUE`` options (repeatable) as ``{name: float}`` (``None`` for a bare ``NAME``
+    when ``need_value`` is false); a name given twice is refused, never "last wins"."""
+    out: dict = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        name = name.strip()
+        if not name or (need_value and not sep):
+            raise ValueError(f"{option} {it!r}: expected NAME=VALUE")
+        if name in out:
+            raise ValueError(f"{option} {name} is given twice ({it!r}); give each name once")
+        if sep:
+            try:
+                out[name] = float(val)
+            except ValueError:
+                raise ValueError(f"{option} {it!r}: value {val!r} is not a number") from None
+        else:
+            out[name] = None
+    return out
+
+
+def _absolute(p: Path) -> Path:
+    """``p`` made absolute; ``ValueError`` if it is relative and the working directory is
+    gone (deleted under the shell that runs gonio)."""
+    try:
+        return p.absolute()
+    except FileNotFoundError:
+        raise argparse.ArgumentTypeError(
+            f"{str(p)!r} is relative but the working directory no longer exists; give an "
+            "absolute path or change to an existing folder"
+        ) from None
+
+
 def _existing_ancestor(p: Path) -> Path:
     """The nearest existing ancestor of ``p`` (``p`` itself if it exists)."""
-    q = p.absolute()
+    q = _absolute(p)
     while not q.exists() and q != q.parent:
         q = q.parent
     return q
@@ -57,6 +90,7 @@ def output_file(text: str) -> str:
     folder (missing folders are created when the file is written). Returns ``text``.
     """
     p = Path(text)
+    _absolute(p)
     if not text or text.endswith(("/", os.sep)) or p.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a folder, expected a file path")
     _writable_parent(p, text)
@@ -68,6 +102,7 @@ def output_dir(text: str) -> str:
     p = Path(text)
     if not text:
         raise argparse.ArgumentTypeError("empty path, expected a folder")
+    _absolute(p)
     if p.exists() and not p.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} exists and is not a folder")
     _writable_parent(p, text)

@@ -16,7 +16,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gonio.cli._common import add_json_option, check_outputs, worker_count, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_outputs,
+    name_value_pairs,
+    worker_count,
+    write_json,
+)
 
 COMMAND = "export"
 HELP = "export samples or a fit to Radiance: PAB-Opto files, BSDF XML, material.rad"
@@ -112,14 +118,7 @@ def _model(args):
             )
     else:
         name, params = args.model, {}
-    for item in args.param:
-        k, sep, v = item.partition("=")
-        if not sep:
-            raise ValueError(f"--param {item!r}: expected NAME=VALUE")
-        try:
-            params[k.strip()] = float(v)
-        except ValueError:
-            raise ValueError(f"--param {item!r}: {v!r} is not a number") from None
+    params.update(name_value_pairs(args.param, "--param"))  # (over those of --fit)
     return brdf.create(name, **params)
 
 

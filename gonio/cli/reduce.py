@@ -17,7 +17,8 @@ HELP = "reduce raw LBL images (eq. 2, eq. 3, thinning) to a BRDF samples table"
 
 def add_arguments(parser) -> None:
     parser.add_argument(
-        "images", nargs="+",
+        "images",
+        nargs="+",
         help="the sample's frames (a bracket), with .json side-cars; at most 4096 x 4096 pixels",
     )
     parser.add_argument("--standard", nargs="+", required=True, help="the standard's frames")

@@ -20,6 +20,7 @@ from gonio.cli._common import (
     check_outputs,
     format_table,
     int_in,
+    name_value_pairs,
     output_file,
     write_json,
 )
@@ -83,23 +84,10 @@ def add_arguments(parser) -> None:
     add_json_option(parser)
 
 
-def _parse_params(items: list[str]) -> dict[str, float]:
-    out = {}
-    for it in items:
-        name, sep, value = it.partition("=")
-        if not sep or not name:
-            raise ValueError(f"--param expects NAME=VALUE, got {it!r}")
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise ValueError(f"--param {name}: {value!r} is not a number") from None
-    return out
-
-
 def _sample(args):
     from gonio import brdf, materials
 
-    params = _parse_params(args.param)
+    params = name_value_pairs(args.param, "--param")
     if args.sample == "standard":
         return "standard"
     if args.sample == "none":

@@ -8,9 +8,9 @@ from gonio.cli._common import (
     add_json_option,
     check_output_dir,
     check_outputs,
-    worker_count,
     format_table,
     output_dir,
+    worker_count,
     write_json,
 )
 
