@@ -91,8 +91,9 @@ def test_a_failed_fit_leaves_no_derived_output(tmp_path, monkeypatch):
 
 
 def test_refused_options_write_nothing(tmp_path, capsys):
-    assert main(["campaign", "--workers", "0", "--angles", "30", "--out", str(tmp_path / "w")]) == 2
-    assert "workers" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # (refused as the options are parsed)
+        main(["campaign", "--workers", "0", "--angles", "30", "--out", str(tmp_path / "w")])
+    assert exc.value.code == 2 and "workers" in capsys.readouterr().err
     assert not (tmp_path / "w" / "plan.json").exists()
 
 
