@@ -198,7 +198,7 @@ def load_lens(lens: Any, width: int | None = None, height: int | None = None):
             raise ValueError(f"lens calibration file {str(p)!r} does not exist")
         from gonio.io.jsonfile import read_document
 
-        return read_document(p, lambda d: load_lens(d, width, height), what="a lens calibration")
+        return read_document(p, lambda d: load_lens(d, width, height), what="lens calibration")
     if isinstance(lens, Mapping):
         lens = FisheyeLens.from_dict(dict(lens.get("lens", lens)))
     if not isinstance(lens, FisheyeLens):
