@@ -666,16 +666,23 @@ def _run_process(tasks, root, fn, workers, retries, progress):
         broken = False
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futs = {pool.submit(_run_task_entry, t, root, fn): tid for tid, t in pending.items()}
-            for fut in as_completed(futs):
-                tid = futs[fut]
-                try:
-                    res = fut.result()
-                except BrokenProcessPool:
-                    broken = True
-                    continue
-                pending.pop(tid, None)
-                progress(res)
-                yield res
+            try:
+                for fut in as_completed(futs):
+                    tid = futs[fut]
+                    try:
+                        res = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        continue
+                    pending.pop(tid, None)
+                    progress(res)
+                    yield res
+            except BaseException:  # Ctrl-C, SIGTERM: the queued tasks cancelled, workers ended
+                workers_left = list((pool._processes or {}).values())  # (public in 3.14 only)
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in workers_left:
+                    proc.kill()  # (a task's unfinished folder is removed by the next run)
+                raise
         if broken:
             attempts += 1
             if attempts > retries:

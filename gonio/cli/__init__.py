@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Iterator, Sequence
@@ -61,6 +62,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+_AT_FORK = False
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    import signal
+
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+
+def _default_sigterm_in_child() -> None:
+    """A process forked while a command runs (a sweep's workers) dies of SIGTERM as before:
+    the interrupt is the command's, not its children's."""
+    import signal
+
+    if signal.getsignal(signal.SIGTERM) is _interrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 @contextlib.contextmanager
 def _terminate_as_interrupt() -> Iterator[None]:
     """SIGTERM raises ``KeyboardInterrupt`` while a command runs, as Ctrl-C does: every
@@ -73,10 +92,11 @@ def _terminate_as_interrupt() -> Iterator[None]:
         yield
         return
 
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    global _AT_FORK
+    if not _AT_FORK:
+        os.register_at_fork(after_in_child=_default_sigterm_in_child)
+        _AT_FORK = True
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         yield
     finally:

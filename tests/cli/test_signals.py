@@ -49,3 +49,28 @@ def test_export_bsdf_stopped_by_a_signal_leaves_no_temporary_or_child(tmp_path, 
     time.sleep(0.2)
     assert not _alive(child)
     assert not [d for d in (tmp_path / "out").iterdir() if d.name.startswith("gonio_bsdf_")]
+
+
+def test_sweep_stopped_by_sigterm_cancels_its_tasks_and_ends_its_workers(tmp_path):
+    """(It ran every queued task to the end before exiting, its workers then idle.)"""
+    import psutil
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('task = "campaign"\nmaterials = ["rolled_brass"]\nseeds = 6\n'
+                    "[fixed]\ntheta_i_deg = [30.0, 40.0]\n")  # fmt: skip
+    argv = ["sweep", str(spec), "--processes", "2", "--out", str(tmp_path / "out"), "-q"]
+    code = f"import sys; from gonio.cli import main; sys.exit(main({argv!r}))"
+    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE)
+    proc = psutil.Process(p.pid)
+    t0 = time.monotonic()
+    while len(proc.children()) < 2:
+        assert time.monotonic() - t0 < 60 and p.poll() is None
+        time.sleep(0.05)
+    workers = proc.children()
+    time.sleep(1.0)
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(timeout=20) == 130
+    _gone, alive = psutil.wait_procs(workers, timeout=5)
+    assert not alive
+    done = list((tmp_path / "out").glob("tasks/*/sweep_task.json"))
+    assert len(done) < 6  # the queued tasks were cancelled, not run
