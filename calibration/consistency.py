@@ -19,6 +19,11 @@ Rules (every frame of the measured, standard and background captures):
 * **Incidence**: the standard's and the background's ``theta_i`` (the source arm's angle)
   equals the measurement's (to :data:`ANGLE_TOLERANCE_RAD`). ``phi_i`` is the sample's own
   rotation (one standard serves every rotation of the sample), so it is not compared.
+* **Typed side-cars**: every field the reduction reads has a type and a range
+  (:data:`gonio.io.images.SIDECAR_SCHEMA`: a boolean is not a number, ``response`` names a
+  known response model).
+* **Distinct frames**: no frame is given twice in a bracket (the same file, or the same
+  exposure and stop with the same pixels): it would count one reading twice and shrink σ.
 * **Distinct captures**: no standard or background frame is pixel-for-pixel a measured frame
   (two real exposures never agree in every pixel), and a side-car's ``sample`` label, where it
   has one, names the capture's role (``"standard"`` / ``"none"`` for the background).
@@ -92,6 +97,9 @@ def check_frame(image: NDArray, meta: Mapping[str, Any], src: str) -> dict[str, 
     ValueError
         Naming ``src`` (the file) and the side-car field a rule fails on (module docstring).
     """
+    from gonio.io.images import check_sidecar
+
+    check_sidecar(meta, src)
     img = np.asarray(image)
     if img.dtype.kind not in "ui":
         raise ValueError(f"{src}: raw image must hold integer DN, got dtype {img.dtype}")
@@ -157,6 +165,7 @@ def check_captures(captures: Mapping[str, Any]) -> None:
     camera: tuple[str, dict[str, Any]] | None = None
     measured = [np.asarray(a) for a in captures["measured"].images]
     for role, cap in captures.items():
+        _check_distinct_frames(cap, role)
         for img, meta, src in zip(cap.images, cap.metas, _sources(cap, role)):
             cam = check_frame(img, meta, src)
             if camera is None:
@@ -184,6 +193,34 @@ def check_captures(captures: Mapping[str, Any]) -> None:
                         f"{src}: the {role} frame is pixel-for-pixel the measured frame "
                         f"{m_src}: pass the {role}'s own capture"
                     )
+
+
+def _check_distinct_frames(cap: Any, role: str) -> None:
+    """Refuse a frame given twice in one bracket: the same file, or the same exposure and
+    stop with pixel-for-pixel the same image (two real exposures never agree in every pixel)."""
+    import os
+
+    srcs = _sources(cap, role)
+    seen: dict[tuple[str, str], list[int]] = {}
+    for k, (img, meta) in enumerate(cap.frames):
+        for j in range(k):
+            a, b = srcs[j], srcs[k]
+            try:
+                same = os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b)
+            except OSError:
+                same = False
+            if same:
+                raise ValueError(f"{b}: the {role} bracket holds this file twice ({a})")
+        stop = (repr(_meta_get(meta, ("exposure_s", "exposure_time_s", "exposure_time"))),
+                repr(_meta_get(meta, ("f_number", "fnumber"))))  # fmt: skip
+        for j in seen.get(stop, []):
+            other = cap.frames[j][0]
+            if other.shape == img.shape and np.array_equal(other, img):
+                raise ValueError(
+                    f"{srcs[k]}: the {role} bracket holds the same frame twice ({srcs[j]}: same "
+                    "exposure, stop and pixels); it would count one reading twice"
+                )
+        seen.setdefault(stop, []).append(k)
 
 
 def _check_role(role: str, meta: Mapping[str, Any], src: str) -> None:

@@ -176,8 +176,6 @@ def read_calibration(folder: str | os.PathLike) -> LabCalibration:
     f = p / CALIBRATION_FILE if p.is_dir() else p
     if not f.is_file():
         raise ValueError(f"calibration folder {str(p)!r} has no {CALIBRATION_FILE}")
-    try:
-        d = json.loads(f.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{f}: not a JSON calibration ({exc})") from None
-    return LabCalibration.from_dict(d)
+    from gonio.io.jsonfile import read_document
+
+    return read_document(f, LabCalibration.from_dict, what="a gonio laboratory calibration")

@@ -196,10 +196,9 @@ def load_lens(lens: Any, width: int | None = None, height: int | None = None):
         p = Path(lens)
         if not p.is_file():
             raise ValueError(f"lens calibration file {str(p)!r} does not exist")
-        try:
-            lens = json.loads(p.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"lens calibration {str(p)!r}: not a JSON lens file ({exc})") from None
+        from gonio.io.jsonfile import read_document
+
+        return read_document(p, lambda d: load_lens(d, width, height), what="lens calibration")
     if isinstance(lens, Mapping):
         lens = FisheyeLens.from_dict(dict(lens.get("lens", lens)))
     if not isinstance(lens, FisheyeLens):

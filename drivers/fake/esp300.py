@@ -62,6 +62,14 @@ AXIS_ERRORS = {
     13: "MOTOR NOT ENABLED",
     20: "HOMING ABORTED",
 }
+#: Longest command line the fake buffers before its terminator (bytes; a real command line is
+#: under 80): a longer one is discarded with error 6, so a host that never sends ``\r`` cannot
+#: grow the buffer (or the time each search for a terminator takes) without bound.
+MAX_LINE = 1024
+
+#: Most commands queued (behind a ``WS`` wait, say); beyond it a command is dropped (error 6).
+MAX_QUEUE = 1024
+
 _CMD = re.compile(r"^\s*(\d*)\s*([A-Za-z]{2})\s*(\?|[-+]?[0-9.]*(?:[eE][-+]?\d+)?)\s*$")
 _AXIS_CMDS = {
     "PA",
@@ -136,17 +144,31 @@ class ESP300Firmware:
         """Bytes from the host (terminator ``\\r`` or ``\\n``; ``;`` separates commands)."""
         data = self.faults.filter_command(bytes(data))
         with self.lock:
+            start = len(self._inbuf)  # (the old bytes hold no terminator: searched from here)
             self._inbuf += data
             while True:
-                idx = [i for i in (self._inbuf.find(b"\r"), self._inbuf.find(b"\n")) if i >= 0]
+                idx = [i for i in (self._inbuf.find(b"\r", start),
+                                   self._inbuf.find(b"\n", start)) if i >= 0]  # fmt: skip
+                start = 0
                 if not idx:
                     break
                 i = min(idx)
                 line = bytes(self._inbuf[:i])
                 del self._inbuf[: i + 1]
-                if line.strip():
+                if len(line) > MAX_LINE:
+                    self._error(6)
+                elif line.strip():
                     text = line.decode("latin-1")
-                    self._queue.extend(c for c in text.split(";") if c.strip())
+                    for c in text.split(";"):
+                        if not c.strip():
+                            continue
+                        if len(self._queue) >= MAX_QUEUE:
+                            self._error(6)
+                            break
+                        self._queue.append(c)
+            if len(self._inbuf) > MAX_LINE:  # no terminator in sight: the line is dropped
+                self._inbuf.clear()
+                self._error(6)
 
     def step(self) -> bytes:
         """Advance: finish homing, report limit stalls, run queued commands; the reply bytes."""
@@ -160,9 +182,9 @@ class ESP300Firmware:
                         m = _CMD.match(c)
                         if m and m.group(2).upper() in ("ST", "AB"):
                             self._queue.remove(c)
-                            out.append(self._execute(c))
+                            out.append(self._execute_safely(c))
                     break
-                out.append(self._execute(self._queue.popleft()))
+                out.append(self._execute_safely(self._queue.popleft()))
         return "".join(o for o in out if o).encode("ascii")
 
     def busy(self) -> bool:
@@ -216,6 +238,15 @@ class ESP300Firmware:
         self._hold = None
         return True
 
+    def _execute_safely(self, cmd: str) -> str:
+        """:meth:`_execute`, any failure of it an error of this command (``TE?`` reports
+        error 6), so that one bad command never stops the controller's serving thread."""
+        try:
+            return self._execute(cmd)
+        except Exception:
+            self._error(6)
+            return ""
+
     def _execute(self, cmd: str) -> str:
         """One command: its reply text, or ``""`` (an error is queued for ``TE?``/``TB?``)."""
         m = _CMD.match(cmd)
@@ -231,6 +262,9 @@ class ESP300Firmware:
             except ValueError:
                 self._error(7)
                 return ""
+        if len(ax_s) > 3:  # (an axis number of thousands of digits is no axis)
+            self._error(9)
+            return ""
         axis = int(ax_s) if ax_s else None
         t = self.bench.now()
         reply = self._controller_command(mn, axis, query, value, t)
@@ -595,53 +629,63 @@ class FakeESP300Server:
         self._pending.append((time.monotonic() + delay, channel, out, unplug))
 
     def _run(self) -> None:
+        """Serve until stopped; an error in one round drops that round's link state (the TCP
+        client is disconnected, the terminal's partial line forgotten), never the thread."""
         while not self._stop.is_set():
-            now = time.monotonic()
-            if self._master < 0 and now >= self._down_until:
-                self._open_pty()
-            fds: list = []
-            if self._master >= 0:
-                fds.append(self._master)
-            if self._client is not None:  # before the listener: a client's EOF is seen first
-                fds.append(self._client)
-            if self._lsock is not None:
-                fds.append(self._lsock)
-            busy = self.firmware.busy() or self.tcp_firmware.busy() or bool(self._pending)
             try:
-                readable, _, _ = select.select(fds, [], [], 0.002 if busy else 0.02)
-            except (OSError, ValueError):
-                readable = []
-            for fd in readable:
-                if fd is self._lsock:
-                    self._accept()
-                elif fd is self._client:
-                    try:
-                        data = self._client.recv(4096)
-                    except OSError:
-                        data = b""
-                    if not data:
-                        self._drop_client()
-                    else:
-                        self.tcp_firmware.receive(data)
-                elif fd == self._master:
-                    try:
-                        data = os.read(self._master, 4096)
-                    except OSError:
-                        data = b""
-                    if data:
-                        self.firmware.receive(data)
-            self._queue_reply("pty", self.firmware.step())
-            self._queue_reply("tcp", self.tcp_firmware.step())
-            now = time.monotonic()
-            keep = []
-            for item in self._pending:
-                due, channel, data, unplug = item
-                if due <= now:
-                    self._send(channel, data)
-                    if unplug:
-                        self.unplug()
-                        keep = []
-                        break
+                self._serve_once()
+            except Exception:
+                self._drop_client()
+                self.firmware.reset_link()
+
+    def _serve_once(self) -> None:
+        """One round: read what arrived, run the firmware, send the replies that are due."""
+        now = time.monotonic()
+        if self._master < 0 and now >= self._down_until:
+            self._open_pty()
+        fds: list = []
+        if self._master >= 0:
+            fds.append(self._master)
+        if self._client is not None:  # before the listener: a client's EOF is seen first
+            fds.append(self._client)
+        if self._lsock is not None:
+            fds.append(self._lsock)
+        busy = self.firmware.busy() or self.tcp_firmware.busy() or bool(self._pending)
+        try:
+            readable, _, _ = select.select(fds, [], [], 0.002 if busy else 0.02)
+        except (OSError, ValueError):
+            readable = []
+        for fd in readable:
+            if fd is self._lsock:
+                self._accept()
+            elif fd is self._client:
+                try:
+                    data = self._client.recv(4096)
+                except OSError:
+                    data = b""
+                if not data:
+                    self._drop_client()
                 else:
-                    keep.append(item)
-            self._pending = keep if self._master >= 0 or self._client else []
+                    self.tcp_firmware.receive(data)
+            elif fd == self._master:
+                try:
+                    data = os.read(self._master, 4096)
+                except OSError:
+                    data = b""
+                if data:
+                    self.firmware.receive(data)
+        self._queue_reply("pty", self.firmware.step())
+        self._queue_reply("tcp", self.tcp_firmware.step())
+        now = time.monotonic()
+        keep = []
+        for item in self._pending:
+            due, channel, data, unplug = item
+            if due <= now:
+                self._send(channel, data)
+                if unplug:
+                    self.unplug()
+                    keep = []
+                    break
+            else:
+                keep.append(item)
+        self._pending = keep if self._master >= 0 or self._client else []

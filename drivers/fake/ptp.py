@@ -44,6 +44,11 @@ from gonio.simulator.bench import Bench
 __all__ = ["FakePTPCamera", "encode_tiff16"]
 
 STORAGE_ID = 0x00010001
+
+#: Most images the fake camera's store holds (its card); a capture beyond them is answered
+#: ``Store_Full`` (0x200C, PTP: ISO 15740 response codes) until the host deletes some.
+MAX_OBJECTS = 256
+STORE_FULL = 0x200C
 F_NUMBERS = (280, 400, 560, 800, 1100, 1600, 2200)
 
 
@@ -185,6 +190,8 @@ class FakePTPCamera(FakeUsbDevice):
                     return self._respond(RC["InvalidStorageID"], tid)
                 if p and len(p) > 1 and p[1] not in (0, FORMAT_TIFF):
                     return self._respond(RC["ParameterNotSupported"], tid)
+                if len(self.objects) >= MAX_OBJECTS:
+                    return self._respond(STORE_FULL, tid)
                 self._capture(tid)
                 return self._respond(RC["OK"], tid)
             if op == OP["GetDevicePropValue"]:

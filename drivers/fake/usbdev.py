@@ -37,6 +37,13 @@ LIBUSB = {  # libusb error code, errno, text (as pyusb's libusb1 backend reports
 }
 
 
+#: Most packets an IN endpoint holds for the host (128 Ki packets: 64 MiB of 512-byte bulk
+#: packets, a 4096 x 4096 16-bit image twice over). While one holds more, the device NAKs
+#: every OUT transfer (the host's write times out) and its firmware sees no new command: a
+#: host that writes commands and never reads the replies cannot grow the queues without bound.
+MAX_QUEUED_PACKETS = 1 << 17
+
+
 def usb_error(kind: str) -> usb.core.USBError:
     """The exception pyusb's libusb1 backend raises for ``kind``."""
     code, err, text = LIBUSB[kind]
@@ -298,7 +305,11 @@ class FakeUsbDevice(abc.ABC):
         return self.accept_out(ep, data)
 
     def accept_out(self, ep: int, data: bytes) -> int:
-        """Hand one OUT transfer that met no transfer fault to the firmware; its length."""
+        """Hand one OUT transfer that met no transfer fault to the firmware; its length (a
+        ``timeout`` error, the OUT NAKed, while replies fill :data:`MAX_QUEUED_PACKETS`)."""
+        with self._cond:
+            if any(len(q) >= MAX_QUEUED_PACKETS for q in self._in.values()):
+                raise usb_error("timeout")
         data = self.faults.filter_command(bytes(data))
         self.on_out(ep, data)
         return len(data)

@@ -404,7 +404,12 @@ class Usbdevfs:
             return 0
         data = bytes(raw.resolve(16, length).retrieve()) if length > 0 else b""
         del fd.pending[addr]
-        dev.accept_out(ep, data)
+        try:
+            dev.accept_out(ep, data)
+        except usb.core.USBError:  # the device NAKs (its replies fill its queues)
+            urb.status = -errno.ETIMEDOUT
+            self._finish(fd, urb)
+            return 0
         self.stats["bytes out"] += len(data)
         self._finish(fd, urb, actual=len(data))
         self._pump()  # the firmware may have queued an answer for a waiting IN URB

@@ -94,6 +94,7 @@ def run(
     instrument: Any = None,
     truth: Any = None,
     workers: int | None = None,
+    overwrite: bool = False,
 ) -> CampaignResult:
     """Run a campaign and (if ``out`` is given) write its results directory.
 
@@ -121,23 +122,23 @@ def run(
         Default: the CPU count (at most 4), for the simulated instrument and a plan of at
         least 8 incidence angles; 1 runs everything in this process. The result does not
         depend on it: every capture draws from its own seed (:func:`capture_seed`).
+    overwrite : bool
+        Replace the results of another plan found in ``out`` (else refused).
 
     Returns
     -------
     CampaignResult
     """
-    with results.locked(Path(out) if out is not None else None):
-        return _run(plan, out, resume, quiet, stream, instrument, truth, workers)
-
-
-def _run(
-    plan: Plan | None, out: Any, resume: bool, quiet: bool, stream: Any, instrument: Any,
-    truth: Any, workers: int | None,
-) -> CampaignResult:  # fmt: skip
-    """:func:`run` under the folder's lock: the four stages."""
-    # 1. prepare
-    t_start = time.perf_counter()
+    t_start = time.perf_counter()  # 1. prepare: every input checked, then the folder opened
     setup = _prepare(plan, out, resume, truth, instrument, workers)
+    with results.locked(setup.out):
+        if setup.out is not None:
+            results.check_out(setup.out, setup.plan, resume, truth, overwrite)
+        return _run(setup, t_start, resume, quiet, stream)
+
+
+def _run(setup: _Setup, t_start: float, resume: bool, quiet: bool, stream: Any) -> CampaignResult:
+    """:func:`run` under the folder's lock: the stages."""
     try:
         return _stages(setup, t_start, resume, quiet, stream)
     except BaseException:
@@ -253,8 +254,6 @@ def _prepare(
     plan = (plan or Plan()).resolved(truth)
     n_workers = _n_workers(workers, plan, instrument)
     outp = Path(out) if out is not None else None
-    if outp is not None:
-        results.check_out(outp, plan, resume, truth)
     info = _material_info(plan.material, truth)
     truth_model = truth if truth is not None else materials.get(plan.material)
     inst = instrument if instrument is not None else _SimulatedLBL(plan)
@@ -337,8 +336,10 @@ def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
     """Worker processes: as asked (1 for a user's instrument, which may not fork), else
     :func:`~gonio.campaign.executor.default_workers` for the simulated one."""
     if workers is not None:
-        if not isinstance(workers, int | np.integer) or workers < 1:
-            raise ValueError(f"workers {workers!r}: expected a positive integer")
+        from gonio.cli._common import max_workers
+
+        if not isinstance(workers, int | np.integer) or not 1 <= workers <= max_workers():
+            raise ValueError(f"workers {workers!r}: expected an integer in [1, {max_workers()}]")
         return int(workers) if instrument is None else 1
     if instrument is not None:
         return 1
@@ -531,7 +532,7 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
             if _restandard(plan, th) and hasattr(inst, "shoot_restandard"):
                 shots["restandard"] = lambda pr=pr, s=seed: inst.shoot_restandard(ti, pr, s + 2)
         folder = raw / key if raw is not None else None
-        made_by = results.group_record(plan, key, seed)
+        made_by = results.group_record(plan, key, seed, th, rot, shots, truth_model)
         frames, loaded, tc, tio = _take_group(folder, shots, resume, made_by)
         captured[key] = frames
         res["n_loaded"] += loaded

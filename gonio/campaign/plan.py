@@ -179,6 +179,10 @@ class Plan:
 
         info = _material_info(self.material, truth)  # ValueError listing the presets
         model = self.model or info["model"]
+        from gonio.cli._common import check_model_terms
+
+        for m in (model, *(self.compare or ())):
+            check_model_terms(m, "model")
         parse_model(model)  # unknown model -> ValueError listing the registered names
         if self.instrument != "lbl":
             raise ValueError(f"instrument {self.instrument!r}; expected 'lbl'")
@@ -190,6 +194,7 @@ class Plan:
         if len(set(angles)) != len(angles):
             raise ValueError(f"theta_i_deg {self.theta_i_deg!r} has repeated angles")
         rot = self._resolved_rotations(info["params"], model)
+        _distinct_groups(angles, rot)
         exp = self.exposures_s
         if exp is not None:
             exp = tuple(float(e) for e in exp)
@@ -264,6 +269,14 @@ class Plan:
         rot = tuple(float(r) for r in rot)
         if not rot or any(not math.isfinite(r) for r in rot) or len(set(rot)) != len(rot):
             raise ValueError(f"rotations_deg {self.rotations_deg!r}: expected distinct angles")
+        seen: dict[float, float] = {}
+        for r in rot:
+            if (m := r % 360.0) in seen:
+                raise ValueError(
+                    f"rotations_deg {self.rotations_deg!r}: {seen[m]:g} and {r:g} are the same "
+                    "rotation (equal modulo 360)"
+                )
+            seen[m] = r
         return rot
 
     def _resolved_thinning(self) -> tuple[tuple[str, float], ...]:
@@ -293,15 +306,23 @@ class Plan:
             raise ValueError(f"instrument_seed {iseed!r}: expected a non-negative integer")
         b = self.binning if self.binning is not None else PRESET_OPTIONS[self.preset]["binning"]
         if b is not None:
+            import inspect
+
+            from gonio.simulator import LBLInstrument
+
+            sig = inspect.signature(LBLInstrument).parameters  # the camera's pixels
+            cam = (sig["width"].default, sig["height"].default)
             try:
                 b = tuple(int(x) for x in b)
-                ok = len(b) == 2 and (b == (0, 0) or min(b) >= 1)
+                ok = len(b) == 2 and (b == (0, 0) or (min(b) >= 1 and b[0] <= cam[0]
+                                                      and b[1] <= cam[1]))  # fmt: skip
             except (TypeError, ValueError):
                 ok = False
             if not ok:
                 raise ValueError(
-                    f"binning {self.binning!r}: expected (width, height) >= 1, or (0, 0) for "
-                    "full resolution"
+                    f"binning {self.binning!r}: expected (width, height) from 1 up to the "
+                    f"camera's {cam[0]} x {cam[1]} (a digitiser reduces), or (0, 0) for full "
+                    "resolution"
                 )
         return self.preset, int(iseed), b
 
@@ -318,9 +339,30 @@ class Plan:
         if unknown:
             raise ValueError(f"unknown plan field(s) {unknown}; expected some of {sorted(names)}")
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        if "thinning" in kw:
+        if kw.get("thinning") is not None:
             kw["thinning"] = tuple(tuple(x) for x in kw["thinning"])
         return cls(**kw)
+
+
+def _distinct_groups(angles: tuple[float, ...], rotations: tuple[float, ...]) -> None:
+    """Refuse angles (or rotations) that would share a raw group folder: its name keeps
+    θi to 0.01° and a rotation to 0.1° (:func:`gonio.campaign.folder.group_key`), and two
+    captures in one folder would overwrite (or on resume stand in for) one another."""
+    from gonio.campaign.folder import group_key
+
+    for name, values, key, step in (
+        ("theta_i_deg", angles, group_key, "0.01"),
+        ("rotations_deg", rotations, lambda r: group_key(0.0, r), "0.1"),
+    ):
+        seen: dict[str, float] = {}
+        for v in values:
+            k = key(v)
+            if k in seen:
+                raise ValueError(
+                    f"{name}: {seen[k]:g} and {v:g} would share the raw group folder {k!r} "
+                    f"(its name keeps {step}°); expected angles that differ at {step}°"
+                )
+            seen[k] = v
 
 
 def _material_info(material: str, truth: Any = None) -> dict[str, Any]:

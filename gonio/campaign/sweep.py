@@ -385,23 +385,12 @@ def load_spec(path: str | os.PathLike) -> SweepSpec:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"sweep spec {str(p)!r} does not exist or is not a file")
-    raw = p.read_bytes()
     suffix = p.suffix.lower()
-    if suffix == ".toml":
-        import tomllib
-
-        try:
-            data = tomllib.loads(raw.decode("utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"sweep spec {p}: not valid TOML: {exc}") from None
-    elif suffix == ".json":
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"sweep spec {p}: not valid JSON: {exc}") from None
-    else:
+    if suffix not in (".toml", ".json"):
         raise ValueError(f"sweep spec {p}: expected a .json or .toml file, got suffix {suffix!r}")
-    return spec_from_dict(data, str(p))
+    from gonio.io.jsonfile import read_document
+
+    return read_document(p, lambda d: spec_from_dict(d, str(p)), what="a sweep spec")
 
 
 def _canonical(obj: Any) -> str:
@@ -458,9 +447,11 @@ def read_summary(task_dir: str | os.PathLike, task: Mapping[str, Any] | None = N
     A summary counts as complete when it parses, says ``"complete": true`` and (if ``task``
     is given) records exactly this task.
     """
+    from gonio.io.jsonfile import read_json
+
     p = Path(task_dir) / SUMMARY
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
+        data = read_json(p)
     except (OSError, ValueError):
         return None
     if not isinstance(data, dict) or data.get("complete") is not True:
@@ -675,16 +666,23 @@ def _run_process(tasks, root, fn, workers, retries, progress):
         broken = False
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futs = {pool.submit(_run_task_entry, t, root, fn): tid for tid, t in pending.items()}
-            for fut in as_completed(futs):
-                tid = futs[fut]
-                try:
-                    res = fut.result()
-                except BrokenProcessPool:
-                    broken = True
-                    continue
-                pending.pop(tid, None)
-                progress(res)
-                yield res
+            try:
+                for fut in as_completed(futs):
+                    tid = futs[fut]
+                    try:
+                        res = fut.result()
+                    except BrokenProcessPool:
+                        broken = True
+                        continue
+                    pending.pop(tid, None)
+                    progress(res)
+                    yield res
+            except BaseException:  # Ctrl-C, SIGTERM: the queued tasks cancelled, workers ended
+                workers_left = list((pool._processes or {}).values())  # (public in 3.14 only)
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in workers_left:
+                    proc.kill()  # (a task's unfinished folder is removed by the next run)
+                raise
         if broken:
             attempts += 1
             if attempts > retries:

@@ -8,10 +8,12 @@ dependencies inside ``run`` so that ``gonio --help`` and small commands start fa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
 import pkgutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from gonio import __version__
 from gonio.cli._common import HelpFormatter
@@ -53,7 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with _terminate_as_interrupt():
+            return int(args._run(args) or 0)
     except ValueError as exc:
         from gonio.cli._common import cli_text
 
@@ -65,6 +68,47 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"gonio {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+_AT_FORK = False
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    import signal
+
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+
+def _default_sigterm_in_child() -> None:
+    """A process forked while a command runs (a sweep's workers) dies of SIGTERM as before:
+    the interrupt is the command's, not its children's."""
+    import signal
+
+    if signal.getsignal(signal.SIGTERM) is _interrupt:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises ``KeyboardInterrupt`` while a command runs, as Ctrl-C does: every
+    command's ``with``/``finally`` blocks then remove its temporaries and ``subprocess.run``
+    kills its running child (``export bsdf``'s ``pabopto2bsdf``), as the campaign does."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    global _AT_FORK
+    if not _AT_FORK:
+        os.register_at_fork(after_in_child=_default_sigterm_in_child)
+        _AT_FORK = True
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def os_error_text(exc: OSError) -> str:

@@ -56,9 +56,42 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     return atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 
 
+def name_value_pairs(items: Sequence[str], option: str, need_value: bool = True) -> dict:
+    """``NAME=VALUE`` options (repeatable) as ``{name: float}`` (``None`` for a bare ``NAME``
+    when ``need_value`` is false); a name given twice is refused, never "last wins"."""
+    out: dict = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        name = name.strip()
+        if not name or (need_value and not sep):
+            raise ValueError(f"{option} {it!r}: expected NAME=VALUE")
+        if name in out:
+            raise ValueError(f"{option} {name} is given twice ({it!r}); give each name once")
+        if sep:
+            try:
+                out[name] = float(val)
+            except ValueError:
+                raise ValueError(f"{option} {it!r}: value {val!r} is not a number") from None
+        else:
+            out[name] = None
+    return out
+
+
+def _absolute(p: Path) -> Path:
+    """``p`` made absolute; ``ValueError`` if it is relative and the working directory is
+    gone (deleted under the shell that runs gonio)."""
+    try:
+        return p.absolute()
+    except FileNotFoundError:
+        raise argparse.ArgumentTypeError(
+            f"{str(p)!r} is relative but the working directory no longer exists; give an "
+            "absolute path or change to an existing folder"
+        ) from None
+
+
 def _existing_ancestor(p: Path) -> Path:
     """The nearest existing ancestor of ``p`` (``p`` itself if it exists)."""
-    q = p.absolute()
+    q = _absolute(p)
     while not q.exists() and q != q.parent:
         q = q.parent
     return q
@@ -79,6 +112,7 @@ def output_file(text: str) -> str:
     folder (missing folders are created when the file is written). Returns ``text``.
     """
     p = Path(text)
+    _absolute(p)
     if not text or text.endswith(("/", os.sep)) or p.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a folder, expected a file path")
     _writable_parent(p, text)
@@ -90,6 +124,7 @@ def output_dir(text: str) -> str:
     p = Path(text)
     if not text:
         raise argparse.ArgumentTypeError("empty path, expected a folder")
+    _absolute(p)
     if p.exists() and not p.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} exists and is not a folder")
     _writable_parent(p, text)
@@ -124,12 +159,79 @@ def int_in(lower: int, upper: int, why: str = ""):
     return parse
 
 
+#: Most worker processes a command starts: a small multiple of the CPU count (more only adds
+#: memory and start-up time; each process holds its own copy of the instrument).
+WORKERS_PER_CPU = 4
+
+
+def max_workers() -> int:
+    """The most worker processes any command starts (:data:`WORKERS_PER_CPU` per CPU)."""
+    return WORKERS_PER_CPU * (os.cpu_count() or 1)
+
+
+def worker_count(text: str) -> int:
+    """``argparse`` type of a worker/process count: an integer in [1, :func:`max_workers`]."""
+    return int_in(1, max_workers(), f"at most {WORKERS_PER_CPU} per CPU")(text)
+
+
+#: Most terms of a model sum (``"lambert + ward + ..."``): the papers' models have 1-3.
+MAX_MODEL_TERMS = 8
+
+
+def check_model_terms(text: str | None, option: str) -> None:
+    """Refuse a model expression of more than :data:`MAX_MODEL_TERMS` terms."""
+    if text is not None and (n := str(text).count("+") + 1) > MAX_MODEL_TERMS:
+        raise ValueError(f"{option}: {n} terms, at most {MAX_MODEL_TERMS} in a model sum")
+
+
 def check_output_dir(text: str, option: str) -> str:
     """:func:`output_dir` for a path computed after parsing; ``ValueError`` naming ``option``."""
     try:
         return output_dir(text)
     except argparse.ArgumentTypeError as exc:
         raise ValueError(f"{option}: {exc}") from None
+
+
+def _same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether ``a`` and ``b`` name one file: ``os.path.samefile`` when both exist (hard and
+    symbolic links), else their resolved paths."""
+    try:
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, RuntimeError):  # unreadable, or a symlink loop: compare as written
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _named(paths: Any) -> list[tuple[str, str]]:
+    out = []
+    for label, value in paths.items():
+        vals = value if isinstance(value, list | tuple) else [value]
+        out += [(label, str(v)) for v in vals if v is not None and str(v) != ""]
+    return out
+
+
+def check_outputs(inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
+    """The output-path rule of every command, checked before its work: an output is none of
+    the command's inputs and no two outputs are the same file (``ValueError`` naming both).
+
+    ``inputs`` and ``outputs`` map an option's name (``"--json"``, ``"samples"``) to a
+    path, a list of paths or ``None`` (not given).
+    """
+    ins, outs = _named(inputs), _named(outputs)
+    for k, (olabel, opath) in enumerate(outs):
+        for ilabel, ipath in ins:
+            if _same_path(opath, ipath):
+                raise ValueError(
+                    f"{olabel} {opath!r} is the input {ilabel} {ipath!r}: writing it would "
+                    "replace that input; choose another path"
+                )
+        for olabel2, opath2 in outs[k + 1 :]:
+            if _same_path(opath, opath2):
+                raise ValueError(
+                    f"{olabel} {opath!r} and {olabel2} {opath2!r} are the same file; "
+                    "choose different paths"
+                )
 
 
 def add_json_option(parser) -> None:

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from gonio.cli._common import add_json_option, format_table, output_file, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_outputs,
+    format_table,
+    output_file,
+    write_json,
+)
 
 COMMAND = "bench"
 HELP = "benchmark run time against error for every accuracy knob, and ablate the skip rules"
@@ -24,7 +30,7 @@ def add_arguments(parser) -> None:
         "--repeat", type=int, default=1, metavar="N", help="time each run N times, keep the best"
     )
     parser.add_argument("--no-ablations", action="store_true", help="skip the ablation section")
-    parser.add_argument("--csv", metavar="PATH", help="write the table as CSV")
+    parser.add_argument("--csv", metavar="PATH", type=output_file, help="write the table as CSV")
     parser.add_argument(
         "--plot", metavar="PATH", type=output_file, help="write the Pareto plot (PNG)"
     )
@@ -34,6 +40,8 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from gonio.diagnostics import bench
+
+    check_outputs({}, {"--csv": args.csv, "--plot": args.plot, "--json": args.json})
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")

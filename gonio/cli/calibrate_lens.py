@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, output_file, write_json
+from gonio.cli._common import add_json_option, check_outputs, output_file, write_json
 
 COMMAND = "calibrate-lens"
 HELP = "calibrate a fisheye lens (Kannala-Brandt) from ChArUco board images"
@@ -35,6 +35,7 @@ def run(args) -> int:
 
     from gonio.calibration.lens import calibrate_fisheye, make_board, write_lens_calibration
 
+    check_outputs({"images": args.images}, {"--out": args.out, "--json": args.json})
     try:
         board = make_board(*args.squares, args.square_length, args.marker_length)
     except ValueError as exc:

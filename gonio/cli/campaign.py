@@ -5,7 +5,15 @@ from __future__ import annotations
 import math
 import os
 
-from gonio.cli._common import add_json_option, check_output_dir, int_in, output_dir, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_output_dir,
+    check_outputs,
+    int_in,
+    output_dir,
+    worker_count,
+    write_json,
+)
 
 COMMAND = "campaign"
 HELP = "capture, reduce, fit and report a material on a simulated instrument (LBL or Cornell)"
@@ -129,8 +137,8 @@ def _instrument_options(group) -> None:
         "--binning",
         default=None,
         metavar="WxH",
-        help="digitise the LBL images to WxH (default the preset's: 108x80 for ward1992; "
-        "0x0 full resolution)",
+        help="digitise the LBL images to WxH, at most the camera's 640x480 (default the "
+        "preset's: 108x80 for ward1992; 0x0 full resolution)",
     )
     group.add_argument(
         "--corrections",
@@ -168,6 +176,11 @@ def _output_options(group) -> None:
         help="LBL: the raw frames once the campaign is done: kept as written, compressed "
         "(lossless LZW, read back bit for bit; ~3x smaller) or removed (no --resume then)",
     )
+    group.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of another plan found in DIR (else refused)",
+    )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
         "--plot-dpi",
@@ -178,9 +191,10 @@ def _output_options(group) -> None:
     )
     group.add_argument(
         "--workers",
-        type=int,
+        type=worker_count,
         default=None,
-        help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none)",
+        help="processes for capture/reduce/plots (default: CPU count for >= 8 angles; 1 = none; "
+        "at most 4 per CPU)",
     )
     group.add_argument("--quiet", action="store_true", help="no progress bars, no table")
 
@@ -249,6 +263,7 @@ _LBL_ONLY = {
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
     "--raw": ("raw", "keep"),
+    "--overwrite": ("overwrite", False),
 }
 _CORNELL_ONLY = {
     "--through-drivers": ("through_drivers", False),
@@ -381,7 +396,9 @@ def run(args) -> int:
         kw["compare"] = tuple(c.strip() for c in args.compare.split(",") if c.strip())
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
-    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers)
+    check_outputs({"--calibration": args.calibration}, {"--out": out, "--json": args.json})
+    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers,
+                       overwrite=args.overwrite)  # fmt: skip
     from gonio.campaign.raw import disk_usage, keep_raw
 
     keep_raw(res.out, args.raw)

@@ -23,8 +23,8 @@ def add_arguments(parser) -> None:
         "on lbl)",
     )
     parser.add_argument(
-        "--instrument-preset",
         "--preset",
+        "--instrument-preset",  # the campaign's older name, kept as an alias
         dest="preset",
         default=None,
         choices=["cornell2005", "modern", "ward1992", "ideal"],

@@ -18,10 +18,15 @@ The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from gonio.cli._common import add_json_option, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_outputs,
+    name_value_pairs,
+    worker_count,
+    write_json,
+)
 
 COMMAND = "export"
 HELP = (
@@ -100,7 +105,10 @@ def add_arguments(parser) -> None:
         help="pabopto2bsdf -s (default: inferred from the incident azimuths)",
     )
     parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
-    parser.add_argument("--nproc", type=int, default=1, help="processes of pabopto2bsdf (-n)")
+    parser.add_argument(
+        "--nproc", type=worker_count, default=1,
+        help="processes of pabopto2bsdf (-n; at most 4 per CPU)",
+    )  # fmt: skip
     parser.add_argument("--fit", help="fit.json (material): its model and parameters")
     parser.add_argument("--model", help="model name (material, instead of --fit)")
     parser.add_argument(
@@ -196,8 +204,12 @@ def _model(args):
     if (args.fit is None) == (args.model is None):
         raise ValueError("material: give either --fit fit.json or --model NAME")
     if args.fit is not None:
-        d = json.loads(Path(args.fit).read_text())
-        name, params = d.get("model"), _unflatten(dict(d.get("params") or {}))
+        from gonio.io.jsonfile import get, get_mapping, read_document
+
+        src = f"--fit {args.fit!r}"
+        d = read_document(args.fit, what="a fit.json")
+        name = get(d, "model", src, str)
+        params = _unflatten(dict(get_mapping(d, "params", src, default={})))
         if not isinstance(name, str) or "+" in name:
             raise ValueError(
                 f"--fit {args.fit}: model {name!r}; sums and lobe models are exported "
@@ -205,14 +217,7 @@ def _model(args):
             )
     else:
         name, params = args.model, {}
-    for item in args.param:
-        k, sep, v = item.partition("=")
-        if not sep:
-            raise ValueError(f"--param {item!r}: expected NAME=VALUE")
-        try:
-            params[k.strip()] = float(v)
-        except ValueError:
-            raise ValueError(f"--param {item!r}: {v!r} is not a number") from None
+    params.update(name_value_pairs(args.param, "--param"))  # (over those of --fit)
     return brdf.create(name, **params)
 
 
@@ -227,6 +232,15 @@ def _run(args) -> int:
     from gonio.io import pabopto
 
     up = _vector(args.up)
+    if args.what == "material":
+        inputs, outputs = {"--fit": args.fit}, {"the output folder": args.source}
+    elif args.what == "mitsuba" and (args.fit is not None or args.model is not None):
+        inputs, outputs = {"--fit": args.fit}, {"the output file": args.source}
+    elif args.what == "mitsuba":
+        inputs, outputs = {"the samples table": args.source}, {"the output file": args.out}
+    else:
+        inputs, outputs = {"the samples table": args.source}, {"the output folder": args.out}
+    check_outputs(inputs, {**outputs, "--json": args.json})
     report: dict = {"what": args.what}
     if args.what == "mitsuba":
         _mitsuba(args, report)

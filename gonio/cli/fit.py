@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, cli_text, format_table, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_model_terms,
+    check_outputs,
+    cli_text,
+    format_table,
+    name_value_pairs,
+    write_json,
+)
 
 COMMAND = "fit"
 HELP = "fit a BRDF model (or a sum 'lambert + ward') to a samples file"
@@ -40,30 +48,18 @@ def add_arguments(parser) -> None:
     add_json_option(parser)
 
 
-def _pairs(items: list[str], option: str, need_value: bool) -> dict:
-    out: dict = {}
-    for it in items:
-        name, sep, val = it.partition("=")
-        name = name.strip()
-        if not name or (need_value and not sep):
-            raise ValueError(f"{option} {it!r}: expected NAME=VALUE")
-        if sep:
-            try:
-                out[name] = float(val)
-            except ValueError:
-                raise ValueError(f"{option} {it!r}: value {val!r} is not a number") from None
-        else:
-            out[name] = None
-    return out
-
-
 def run(args) -> int:
     from gonio import fit
     from gonio.io.samples_table import read_samples
 
+    check_outputs({"samples": args.samples}, {"--json": args.json})
+    check_model_terms(args.model, "--model")
+    fixed = name_value_pairs(args.fixed, "--fixed", need_value=False)
+    init = name_value_pairs(args.init, "--init", need_value=True)
+    both = sorted(k for k in set(fixed) & set(init) if fixed[k] is not None)
+    if both:
+        raise ValueError(f"{', '.join(both)}: held by --fixed at a value and started by --init")
     samples = read_samples(args.samples)
-    fixed = _pairs(args.fixed, "--fixed", need_value=False)
-    init = _pairs(args.init, "--init", need_value=True)
     per_band = None
     if args.per_band is not None:
         per_band = [p.strip() for p in args.per_band.split(",") if p.strip()]

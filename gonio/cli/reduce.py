@@ -9,7 +9,7 @@ References
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, output_file, write_json
+from gonio.cli._common import add_json_option, check_outputs, output_file, write_json
 
 COMMAND = "reduce"
 HELP = "reduce raw LBL images (eq. 2, eq. 3, thinning) to a BRDF samples table"
@@ -17,7 +17,9 @@ HELP = "reduce raw LBL images (eq. 2, eq. 3, thinning) to a BRDF samples table"
 
 def add_arguments(parser) -> None:
     parser.add_argument(
-        "images", nargs="+", help="the sample's frames (a bracket), with .json side-cars"
+        "images",
+        nargs="+",
+        help="the sample's frames (a bracket), with .json side-cars; at most 4096 x 4096 pixels",
     )
     parser.add_argument("--standard", nargs="+", required=True, help="the standard's frames")
     parser.add_argument("--background", nargs="+", required=True, help="background frames")
@@ -33,7 +35,13 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from gonio.calibration import load_capture, reduce_capture
+    from gonio.io.images import sidecar_path
 
+    frames = {"images": args.images, "--standard": args.standard, "--background": args.background}
+    inputs = {**frames, "--lens-calibration": args.lens_calibration}
+    for opt, paths in frames.items():
+        inputs[f"a side-car of {opt}"] = [sidecar_path(p) for p in paths]
+    check_outputs(inputs, {"--out": args.out, "--json": args.json})
     res = reduce_capture(
         load_capture(args.images),
         load_capture(args.standard),

@@ -15,7 +15,15 @@ from __future__ import annotations
 
 import math
 
-from gonio.cli._common import add_json_option, format_table, int_in, output_file, write_json
+from gonio.cli._common import (
+    add_json_option,
+    check_outputs,
+    format_table,
+    int_in,
+    name_value_pairs,
+    output_file,
+    write_json,
+)
 
 COMMAND = "render"
 
@@ -94,23 +102,10 @@ def add_arguments(parser) -> None:
     add_json_option(parser)
 
 
-def _parse_params(items: list[str]) -> dict[str, float]:
-    out = {}
-    for it in items:
-        name, sep, value = it.partition("=")
-        if not sep or not name:
-            raise ValueError(f"--param expects NAME=VALUE, got {it!r}")
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise ValueError(f"--param {name}: {value!r} is not a number") from None
-    return out
-
-
 def _sample(args):
     from gonio import brdf, materials
 
-    params = _parse_params(args.param)
+    params = name_value_pairs(args.param, "--param")
     if args.sample == "standard":
         return "standard"
     if args.sample == "none":
@@ -168,6 +163,7 @@ def _angle_plot(img, meta, path) -> None:
 
 
 def run(args) -> int:
+    import re
     from pathlib import Path
 
     import numpy as np
@@ -178,6 +174,17 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in IMAGE_SUFFIXES:
         raise ValueError(f"--out {args.out!r} must end in one of {', '.join(IMAGE_SUFFIXES)}")
+    check_outputs({}, {"--out": out, "the side-car of --out": sidecar_path(out),
+                       "--plot": args.plot, "--json": args.json})  # fmt: skip
+    if args.bracket:  # its frames OUT_fN.ext (and side-cars), named once the stops are known
+        stop = re.compile(rf"{re.escape(out.stem)}_f[0-9.]+{re.escape(out.suffix)}(\.json)?")
+        for opt, p in (("--plot", args.plot), ("--json", args.json)):
+            if (
+                p
+                and Path(p).resolve().parent == out.resolve().parent
+                and stop.fullmatch(Path(p).name)
+            ):
+                raise ValueError(f"{opt} {p!r} is the name of one of --bracket's frames")
     if not (0.0 <= args.theta_i < 90.0):
         raise ValueError(f"--theta-i must be in [0, 90) degrees, got {args.theta_i}")
     inst = LBLInstrument(

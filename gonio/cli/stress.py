@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, format_table, write_json
+from gonio.cli._common import add_json_option, check_outputs, format_table, write_json
 
 COMMAND = "stress"
 HELP = (
@@ -30,6 +30,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from gonio.diagnostics import stress
 
+    check_outputs({}, {"--json": args.json})
     r = stress.run(args.size, models=args.models, rng=args.seed, stages=args.stages)
     known = {(k["model"], k["kind"]) for k in r["known"]}
     rows = []

@@ -7,8 +7,10 @@ import sys
 from gonio.cli._common import (
     add_json_option,
     check_output_dir,
+    check_outputs,
     format_table,
     output_dir,
+    worker_count,
     write_json,
 )
 
@@ -30,8 +32,8 @@ def add_arguments(parser) -> None:
     ex.add_argument(
         "--processes",
         metavar="N",
-        type=int,
-        help="run on N local worker processes (concurrent.futures)",
+        type=worker_count,
+        help="run on N local worker processes (concurrent.futures; at most 4 per CPU)",
     )
     ex.add_argument(
         "--scheduler",
@@ -42,8 +44,9 @@ def add_arguments(parser) -> None:
     ex.add_argument(
         "--dask-local",
         metavar="N",
-        type=int,
-        help="start a Dask LocalCluster of N worker processes (needs gonio[distributed])",
+        type=worker_count,
+        help="start a Dask LocalCluster of N worker processes (needs gonio[distributed]; at "
+        "most 4 per CPU)",
     )
     parser.add_argument(
         "--retries", type=int, default=2, help="retries of a failed task (default 2)"
@@ -69,6 +72,7 @@ def run(args) -> int:
 
     from gonio.campaign import sweep
 
+    check_outputs({"spec": args.spec}, {"--out": args.out, "--json": args.json})
     spec = sweep.load_spec(args.spec)
     if args.processes is not None and args.processes < 1:
         raise ValueError(f"--processes must be >= 1, got {args.processes}")

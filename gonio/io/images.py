@@ -21,7 +21,7 @@ Malformed or unreadable files raise :class:`ImageFormatError` (a ``ValueError``)
 
 from __future__ import annotations
 
-import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -31,12 +31,19 @@ from numpy.typing import NDArray
 
 __all__ = [
     "IMAGE_SUFFIXES",
+    "RESPONSES",
+    "SIDECAR_SCHEMA",
     "ImageFormatError",
+    "check_sidecar",
     "read_image",
     "read_metadata",
     "sidecar_path",
     "write_image",
 ]
+
+#: Most pixels of an image read back (4096 x 4096): a few-kB PNG of 12000 x 12000 pixels
+#: would decode to hundreds of MB and every reduction temporary to as much again.
+MAX_PIXELS = 4096 * 4096
 
 #: image file suffixes this module reads and writes
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff")
@@ -50,6 +57,85 @@ _DTYPES = {
 
 class ImageFormatError(ValueError):
     """An image or side-car file that is missing, truncated or not what it claims to be."""
+
+
+#: Response models a side-car's ``response`` may name: ``linear`` (the linear merge, with
+#: ``response_gamma``), ``nonlinear`` (an unknown response recovered from the bracket,
+#: Debevec & Malik 1997).
+RESPONSES = ("linear", "nonlinear")
+
+_INF = float("inf")
+
+#: The side-car fields the reduction reads, and what each may hold: ``(kind, low, high)``
+#: with kind ``"number"`` (finite, never a boolean), ``"integer"``, ``"choice"`` (``low``
+#: the allowed values) or ``"shape"``; ``(low, high)`` is the closed range, ``low`` given as
+#: ``(value,)`` when the bound itself is excluded. The same fields in the ``sensor``,
+#: ``camera`` and ``exposure`` sub-objects (where the reduction also looks) follow it too.
+SIDECAR_SCHEMA: dict[str, tuple[str, Any, Any]] = {
+    **{k: ("number", (0.0,), _INF) for k in ("exposure_s", "exposure_time_s", "exposure_time",
+                                           "f_number", "fnumber", "gain_e_per_dn",
+                                           "gain_e_per_adu", "gain", "response_gamma",
+                                           "pixel_pitch_m", "saturation_dn",
+                                           "white_level_dn", "saturation_adu", "white_level")},
+    **{k: ("number", 0.0, _INF) for k in ("read_noise_e", "read_noise", "dark_current_e_s",
+                                        "black_level_dn", "black_level_adu", "black_level",
+                                        "bias_adu", "time_s", "clock_s")},
+    "exposure": ("number", (0.0,), _INF),
+    "theta_i": ("number", -3.2, 3.2),
+    "phi_i": ("number", -1e4, 1e4),
+    "sample_rotation": ("number", -1e4, 1e4),
+    "rho_standard": ("number", (0.0,), 1.0),
+    "adc_bits": ("integer", 1, 32),
+    "bit_depth": ("integer", 1, 32),
+    "max_dn": ("integer", 1, 2**32 - 1),
+    "response": ("choice", RESPONSES, None),
+    "shape": ("shape", None, None),
+    "dtype": ("choice", ("uint8", "uint16", "float32"), None),
+}  # fmt: skip
+
+
+def _schema_error(src: str, field: str, v: Any, kind: str, lo: Any, hi: Any) -> str | None:
+    if v is None and kind != "choice":
+        return None  # (absent: the reduction's own rule says whether it is needed)
+    if kind == "choice":
+        return None if v is None or (isinstance(v, str) and v in lo) else f"one of {list(lo)}"
+    if kind == "shape":
+        ok = isinstance(v, list) and 2 <= len(v) <= 3 and all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in v)  # fmt: skip
+        return None if ok else "a list of 2 or 3 positive integers"
+    integer = kind == "integer"
+    num = isinstance(v, int) if integer else isinstance(v, int | float)
+    open_lo = isinstance(lo, tuple)
+    low = lo[0] if open_lo else lo
+    ok = num and not isinstance(v, bool) and math.isfinite(v) and v <= hi
+    ok = ok and (v > low if open_lo else v >= low)
+    if ok:
+        return None
+    what = "an integer" if integer else "a number (not a boolean)"
+    rng = f"{'(' if open_lo else '['}{low:g}, {hi:g}]"
+    return f"{what} in {rng}"
+
+
+def check_sidecar(meta: Any, src: str) -> dict[str, Any]:
+    """``meta`` if it is an object whose fields follow :data:`SIDECAR_SCHEMA`, else
+    :class:`ImageFormatError` naming ``src`` (the side-car) and the field."""
+    if not isinstance(meta, dict):
+        raise ImageFormatError(f"side-car {src} must hold a JSON object, got {type(meta).__name__}")
+    scopes = [("", meta)]
+    scopes += [(f"{sub}.", meta[sub]) for sub in ("sensor", "camera", "exposure")
+               if isinstance(meta.get(sub), dict)]  # fmt: skip
+    for prefix, scope in scopes:
+        for field, (kind, lo, hi) in SIDECAR_SCHEMA.items():
+            if field not in scope or (field == "exposure" and not prefix and
+                                      isinstance(scope[field], dict)):  # fmt: skip
+                continue
+            v = scope[field]
+            expected = _schema_error(src, field, v, kind, lo, hi)
+            if expected is not None:
+                raise ImageFormatError(
+                    f"side-car {src}: field {prefix + field!r} is {v!r:.60}, expected {expected}"
+                )
+    return meta
 
 
 def sidecar_path(path: str | os.PathLike) -> Path:
@@ -153,15 +239,40 @@ def read_metadata(path: str | os.PathLike, required: bool = True) -> dict[str, A
         if required:
             raise ImageFormatError(f"side-car {str(sc)!r} of image {str(path)!r} does not exist")
         return {}
+    from gonio.io.jsonfile import read_json
+
     try:
-        meta = json.loads(sc.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ImageFormatError(f"side-car {str(sc)!r} is not valid JSON: {exc}") from None
-    if not isinstance(meta, dict):
-        raise ImageFormatError(
-            f"side-car {str(sc)!r} must hold a JSON object, got {type(meta).__name__}"
-        )
-    return meta
+        meta = read_json(sc)
+    except ValueError as exc:
+        raise ImageFormatError(f"side-car {exc}") from None
+    return check_sidecar(meta, repr(str(sc)))
+
+
+def _header_size(head: memoryview) -> tuple[int, int] | None:
+    """(width, height) from a PNG's IHDR or a TIFF's first IFD, read before decoding;
+    ``None`` if the header does not say (the decoder then decides)."""
+    import struct
+
+    head = head.cast("B") if head.format != "B" else head
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24 and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    if head[:4] not in (b"II*\x00", b"MM\x00*") or len(head) < 8:
+        return None
+    e = "<" if head[:2] == b"II" else ">"
+    (ifd,) = struct.unpack(e + "I", head[4:8])
+    if ifd + 2 > len(head):
+        return None
+    (n,) = struct.unpack(e + "H", head[ifd : ifd + 2])
+    dims: dict[int, int] = {}
+    for k in range(n):
+        at = ifd + 2 + 12 * k
+        if at + 12 > len(head):
+            break
+        tag, typ, _count = struct.unpack(e + "HHI", head[at : at + 8])
+        if tag in (256, 257):
+            fmt = e + ("H" if typ == 3 else "I")
+            dims[tag] = struct.unpack(fmt, head[at + 8 : at + 8 + struct.calcsize(fmt)])[0]
+    return (dims[256], dims[257]) if len(dims) == 2 else None
 
 
 def read_image(
@@ -189,6 +300,12 @@ def read_image(
     if not path.is_file():
         raise ImageFormatError(f"image file {str(path)!r} does not exist")
     raw = np.fromfile(path, dtype=np.uint8)
+    size = _header_size(memoryview(raw))
+    if size is not None and size[0] * size[1] > MAX_PIXELS:
+        raise ImageFormatError(
+            f"{str(path)!r} is {size[0]} x {size[1]} pixels, more than the {MAX_PIXELS} "
+            "(4096 x 4096) gonio reads"
+        )
     img = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
     if img is None:
         raise ImageFormatError(f"{str(path)!r} is not a readable {suf} image")

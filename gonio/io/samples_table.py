@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from gonio.io.atomic import atomic_write_bytes
+from gonio.io.jsonfile import loads
 from gonio.samples import COLUMNS, BRDFSamples
 
 __all__ = ["UNITS", "csv_rows", "read_samples", "write_csv_parts", "write_samples"]
@@ -141,8 +142,8 @@ def _read_csv(path: Path) -> BRDFSamples:
                 key, sep, val = s[1:].partition(":")
                 if sep:
                     try:
-                        meta[key.strip()] = json.loads(val)
-                    except json.JSONDecodeError:
+                        meta[key.strip()] = loads(val, repr(str(path)))
+                    except ValueError:
                         meta[key.strip()] = val.strip()
                 continue
             if header is None:
@@ -183,7 +184,7 @@ def _read_npz(path: Path) -> BRDFSamples:
                 raise ValueError(f"missing array(s) {missing}")
             cols = [np.array(z[c]) for c in COLUMNS]
             wl = np.array(z["wavelength_nm"]) if "wavelength_nm" in files else None
-            meta = json.loads(str(z["metadata"])) if "metadata" in files else {}
+            meta = loads(str(z["metadata"]), repr(str(path))) if "metadata" in files else {}
     except (OSError, EOFError) as exc:
         raise ValueError(f"not a readable .npz file ({exc})") from None
     except Exception as exc:  # zipfile.BadZipFile and friends

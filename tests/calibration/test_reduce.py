@@ -127,7 +127,7 @@ def test_binary_lens_file_names_the_file(tmp_path):
 
     p = tmp_path / "lens.bin"
     p.write_bytes(bytes(range(256)))
-    with pytest.raises(ValueError, match=r"lens calibration '.*lens\.bin': not a JSON lens file"):
+    with pytest.raises(ValueError, match=r"lens calibration '.*lens\.bin': not valid JSON"):
         load_lens(str(p))
 
 

@@ -366,3 +366,62 @@ def test_tcp_port_in_use_names_the_port():
         busy.close()
     with pytest.raises(ValueError, match=r"\[0, 65535\]"):
         FakeESP300Server(bench(), tcp=70000).start()
+
+
+# -- issue 30, 6-7: any input, bounded buffers, a server that keeps serving --------------------
+def test_a_5000_digit_axis_number_is_an_error_and_the_server_keeps_serving():
+    import socket
+
+    with FakeESP300Server(bench(), tcp=True) as srv:
+        a = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        a.sendall(b"9" * 5000 + b"TP?\r")
+        assert _ask(a, b"TE?\r") == b"6\r\n"  # the line answered: longer than MAX_LINE
+        a.sendall(b"9" * 500 + b"TP?\r")
+        assert _ask(a, b"TE?\r") == b"9\r\n"  # the command answered: axis out of range
+        assert _ask(a, b"VE?\r").startswith(b"ESP300")
+        a.close()
+        b = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        assert _ask(b, b"1TP?\r").strip()  # and on a new connection
+        b.close()
+
+
+def test_an_exception_in_one_command_answers_it_and_serving_goes_on(monkeypatch):
+    import socket
+
+    with FakeESP300Server(bench(), tcp=True) as srv:
+        real = ESP300Firmware._axis_command
+
+        def broken(self, mn, *a):
+            if mn == "ID":
+                raise RuntimeError("firmware bug")
+            return real(self, mn, *a)
+
+        monkeypatch.setattr(ESP300Firmware, "_axis_command", broken)
+        a = socket.create_connection(("127.0.0.1", srv.tcp_port))
+        a.sendall(b"1ID?\r")
+        assert _ask(a, b"TE?\r") == b"6\r\n"
+        assert _ask(a, b"VE?\r").startswith(b"ESP300")
+        a.close()
+
+
+def test_the_input_buffer_is_bounded_on_a_line_without_a_terminator():
+    from gonio.drivers.fake.esp300 import MAX_LINE, MAX_QUEUE
+
+    fw = ESP300Firmware(bench())
+    for _ in range(200):
+        fw.receive(b"x" * 1000)  # 200 kB, no terminator
+        assert len(fw._inbuf) <= MAX_LINE
+    assert fw_run(fw, b"\rTE?\r") == b"6\r\n"  # the over-long line: error 6
+    assert fw_run(fw, b"VE?\r").startswith(b"ESP300")
+    fw.receive(b"WS1e12\r" + b"VE?;" * 5000 + b"\r")
+    assert len(fw._queue) <= MAX_QUEUE
+
+
+def test_a_line_in_one_byte_chunks_reads_as_one_chunk():
+    """(Each chunk is searched for a terminator from where the last search ended.)"""
+    fw = ESP300Firmware(bench())
+    for b in b"1TP?;2TP?":
+        fw.receive(bytes([b]))
+    assert fw.step() == b""
+    fw.receive(b"\r")
+    assert fw_run(fw, b"") == fw_run(ESP300Firmware(bench()), b"1TP?;2TP?\r")

@@ -398,3 +398,39 @@ def test_remote_server_bounds_its_client_threads(bus):
         srv.close()
     _wait_until(lambda: clients() == 0)
     assert clients() == 0
+
+
+# -- issue 30, 6: bounded queues and object store -----------------------------------------------
+def test_replies_never_read_fill_no_more_than_the_queue_bound(bus, monkeypatch):
+    from gonio.drivers.fake import usbdev
+
+    monkeypatch.setattr(usbdev, "MAX_QUEUED_PACKETS", 8)
+    name, _, fakes = bus
+    d = usb.core.find(idVendor=0x2457, idProduct=0x101E, backend=backend(name))
+    d.set_configuration()
+    with pytest.raises(usb.core.USBTimeoutError):
+        for _ in range(100):  # "query information" commands; their replies never read
+            d.write(0x01, b"\x05\x00", timeout=100)
+    assert max(len(q) for q in fakes["usb2000plus"]._in.values()) <= 8 + 2
+    while True:  # the host reads the replies: the device takes commands again
+        try:
+            d.read(0x81, 512, timeout=50)
+        except usb.core.USBTimeoutError:
+            break
+    assert d.write(0x01, b"\x05\x00", timeout=100) == 2
+
+
+def test_the_cameras_store_is_bounded(bus, monkeypatch):
+    from gonio.drivers.fake import ptp
+
+    monkeypatch.setattr(ptp, "MAX_OBJECTS", 2)
+    name, _, fakes = bus
+    cam = PTPCamera.open(name)
+    cam.exposure = 0.001
+    for _ in range(2):
+        cam.capture(timeout=5, delete=False)
+    assert len(fakes["ptp"].objects) == 2
+    with pytest.raises(DeviceError):
+        cam.capture(timeout=5, delete=False)
+    assert len(fakes["ptp"].objects) == 2
+    cam.close()
