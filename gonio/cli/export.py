@@ -15,6 +15,7 @@ The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from gonio.cli._common import add_json_option, write_json
@@ -52,7 +53,7 @@ def add_arguments(parser) -> None:
         default=None,
         help="average each incident direction's samples in NxN equal-solid-angle cells "
         "(power of two 8..256; 0 = every sample), bounding pabopto2bsdf's and bsdf2ttree's "
-        "time (default 32)",
+        "time (default 16)",
     )
     parser.add_argument(
         "--spread",
@@ -64,7 +65,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--max-lobes", type=int, default=None, help="bsdf2ttree -l (default 15000)")
     parser.add_argument("--kind", default="klems", choices=["klems", "ttree"], help="BSDF form")
     parser.add_argument(
-        "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
+        "--samples-per-patch",
+        type=int,
+        default=None,
+        help="bsdf2klems -n (default 128 for samples, whose interpolation error dominates "
+        "from there; 1024 for a fit's .cal)",
     )
     parser.add_argument("--resolution", type=int, default=6, help="bsdf2ttree -g (4..7)")
     parser.add_argument("--reciprocity", action="store_true", help="bsdf2ttree +a")
@@ -74,7 +79,9 @@ def add_arguments(parser) -> None:
         help="pabopto2bsdf -s (default: inferred from the incident azimuths)",
     )
     parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
-    parser.add_argument("--nproc", type=int, default=1, help="pabopto2bsdf -n")
+    parser.add_argument(
+        "--nproc", type=int, default=None, help="pabopto2bsdf -n (default: every processor)"
+    )
     parser.add_argument("--fit", help="fit.json (material): its model and parameters")
     parser.add_argument("--model", help="model name (material, instead of --fit)")
     parser.add_argument(
@@ -141,9 +148,8 @@ def _run(args) -> int:
         print(f"{mat.kind} {mat.name}: " + ", ".join(str(p) for p in paths))
         report.update(kind=mat.kind, files=[str(p) for p in paths])
         if args.bsdf:
-            b = pabopto.build_model_bsdf(
-                model, out, args.name, args.bsdf, args.samples_per_patch, args.resolution, up
-            )
+            spp = 1024 if args.samples_per_patch is None else args.samples_per_patch
+            b = pabopto.build_model_bsdf(model, out, args.name, args.bsdf, spp, args.resolution, up)
             _print_build(b)
             report["bsdf"] = b.to_dict()
     else:
@@ -167,7 +173,11 @@ def _run(args) -> int:
                 args.out,
                 args.name,
                 kind=args.kind,
-                samples_per_patch=args.samples_per_patch,
+                samples_per_patch=(
+                    pabopto.DEFAULT_SAMPLES_PER_PATCH
+                    if args.samples_per_patch is None
+                    else args.samples_per_patch
+                ),
                 resolution=args.resolution,
                 reciprocity=args.reciprocity,
                 symmetry=args.symmetry,
@@ -177,12 +187,18 @@ def _run(args) -> int:
                 cells=cells,
                 spread=spread,
                 max_lobes=(pabopto.DEFAULT_MAX_LOBES if args.max_lobes is None else args.max_lobes),
+                progress=_progress,
             )
             _print_build(b)
             report["bsdf"] = b.to_dict()
     if args.json:
         write_json(args.json, report)
     return 0
+
+
+def _progress(line: str) -> None:
+    """A BSDF build's progress, on stderr (stdout keeps the result)."""
+    print(line, file=sys.stderr, flush=True)
 
 
 def _print_build(b) -> None:
