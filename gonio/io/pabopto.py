@@ -558,7 +558,7 @@ def _run_reporting(
     stdout, ``RuntimeError`` on a non-zero exit, killed at ``timeout`` seconds), telling
     ``progress`` how far it is: from its own progress bar when it draws one (an estimate of
     the time left from the time so far), else its time so far against ``estimate``
-    (processor seconds on one core), at most every 10 % or 15 s."""
+    (its seconds on an idle machine), at most every 10 % or 15 s."""
     import subprocess
     import threading
 
@@ -587,7 +587,7 @@ def _run_reporting(
                         )
                         shown.update(step=step, t=now)
                 elif now - shown["t"] >= 15.0:
-                    progress(f"{name}: {now - t0:.0f} s (estimated {estimate:.0f} s)")
+                    progress(f"{name}: {now - t0:.0f} s (about {estimate:.0f} s when idle)")
                     shown["t"] = now
 
         def read() -> None:
