@@ -18,6 +18,7 @@ The BSDF builds need Radiance's programs: ``pip install 'gonio[radiance]'``.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from gonio.cli._common import (
@@ -76,7 +77,7 @@ def add_arguments(parser) -> None:
         default=None,
         help="average each incident direction's samples in NxN equal-solid-angle cells "
         "(power of two 8..256; 0 = every sample), bounding pabopto2bsdf's and bsdf2ttree's "
-        "time (default 32)",
+        "time (default 16)",
     )
     parser.add_argument(
         "--spread",
@@ -93,7 +94,11 @@ def add_arguments(parser) -> None:
         help="BSDF form: Klems basis (bsdf2klems) or tensor tree (bsdf2ttree)",
     )
     parser.add_argument(
-        "--samples-per-patch", type=int, default=1024, help="bsdf2klems -n (default 1024)"
+        "--samples-per-patch",
+        type=int,
+        default=None,
+        help="bsdf2klems -n (default 128 for samples, whose interpolation error dominates "
+        "from there; 1024 for a fit's .cal)",
     )
     parser.add_argument(
         "--resolution", type=int, default=6, help="tensor-tree resolution, bsdf2ttree -g (4..7)"
@@ -106,8 +111,8 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--up", default="0,1,0", help="the sample's y axis in the scene (x,y,z)")
     parser.add_argument(
-        "--nproc", type=worker_count, default=1,
-        help="processes of pabopto2bsdf (-n; at most 4 per CPU)",
+        "--nproc", type=worker_count, default=None,
+        help="processes of pabopto2bsdf (-n; default: every processor; at most 4 per CPU)",
     )  # fmt: skip
     parser.add_argument("--fit", help="fit.json (material): its model and parameters")
     parser.add_argument("--model", help="model name (material, instead of --fit)")
@@ -255,9 +260,8 @@ def _run(args) -> int:
         print(f"{mat.kind} {mat.name}: " + ", ".join(str(p) for p in paths))
         report.update(kind=mat.kind, files=[str(p) for p in paths])
         if args.bsdf:
-            b = pabopto.build_model_bsdf(
-                model, out, args.name, args.bsdf, args.samples_per_patch, args.resolution, up
-            )
+            spp = 1024 if args.samples_per_patch is None else args.samples_per_patch
+            b = pabopto.build_model_bsdf(model, out, args.name, args.bsdf, spp, args.resolution, up)
             _print_build(b)
             report["bsdf"] = b.to_dict()
     else:
@@ -281,7 +285,11 @@ def _run(args) -> int:
                 args.out,
                 args.name,
                 kind=args.kind,
-                samples_per_patch=args.samples_per_patch,
+                samples_per_patch=(
+                    pabopto.DEFAULT_SAMPLES_PER_PATCH
+                    if args.samples_per_patch is None
+                    else args.samples_per_patch
+                ),
                 resolution=args.resolution,
                 reciprocity=args.reciprocity,
                 symmetry=args.symmetry,
@@ -291,12 +299,18 @@ def _run(args) -> int:
                 cells=cells,
                 spread=spread,
                 max_lobes=(pabopto.DEFAULT_MAX_LOBES if args.max_lobes is None else args.max_lobes),
+                progress=_progress,
             )
             _print_build(b)
             report["bsdf"] = b.to_dict()
     if args.json:
         write_json(args.json, report)
     return 0
+
+
+def _progress(line: str) -> None:
+    """A BSDF build's progress, on stderr (stdout keeps the result)."""
+    print(line, file=sys.stderr, flush=True)
 
 
 def _print_build(b) -> None:

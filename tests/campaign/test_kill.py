@@ -114,9 +114,34 @@ def _check_same(ref: Path, out: Path) -> None:
         assert a[k] == b[k], f"{k} differs from the uninterrupted run's"
 
 
-def _lbl(tmp_path: Path, points: list) -> None:
-    ref = tmp_path / "ref"
+@pytest.fixture(scope="module")
+def lbl_ref(tmp_path_factory) -> Path:
+    """The uninterrupted LBL run, made once for every test of this module that compares a
+    killed and resumed run with it (the same command and seeds: the same bytes)."""
+    ref = tmp_path_factory.mktemp("lbl") / "ref"
     subprocess.run(_cmd(LBL, ref), check=True, capture_output=True)
+    return ref
+
+
+@pytest.fixture(scope="module")
+def cornell_ref(tmp_path_factory) -> tuple[list[str], Path, float]:
+    """The Cornell campaign's arguments (its plan file, which every run of the module reads:
+    the samples' header names its path), its uninterrupted run (made once, as
+    :func:`lbl_ref`) and that run's wall time."""
+    folder = tmp_path_factory.mktemp("cornell")
+    plan = folder / "plan.csv"
+    plan.write_text(PLAN)
+    args = ["--instrument", "cornell", "--plan", str(plan)]
+    ref = folder / "ref"
+    t0 = time.monotonic()
+    subprocess.run(_cmd(args, ref), check=True, capture_output=True)
+    t_ref = time.monotonic() - t0
+    # plan.json names the plan file's path: the same plan, another folder
+    (ref / "plan.json").unlink()
+    return args, ref, t_ref
+
+
+def _lbl(ref: Path, tmp_path: Path, points: list) -> None:
     out = tmp_path / "killed"
     killed = [_kill_when(LBL, out, w) for w in points]
     assert all(killed)
@@ -124,15 +149,8 @@ def _lbl(tmp_path: Path, points: list) -> None:
     _check_same(ref, out)
 
 
-def _cornell(tmp_path: Path, points: list) -> None:
-    tmp_path.mkdir(parents=True, exist_ok=True)
-    plan = tmp_path / "plan.csv"
-    plan.write_text(PLAN)
-    args = ["--instrument", "cornell", "--plan", str(plan)]
-    ref = tmp_path / "ref"
-    t0 = time.monotonic()
-    subprocess.run(_cmd(args, ref), check=True, capture_output=True)
-    t_ref = time.monotonic() - t0
+def _cornell(ref: tuple[list[str], Path, float], tmp_path: Path, points: list) -> None:
+    args, ref, t_ref = ref
     out = tmp_path / "killed"
     # a time point is a fraction of the uninterrupted run's wall time (absolute seconds were
     # past the end of a fast run on an idle machine: the campaign finished before its kill)
@@ -140,8 +158,7 @@ def _cornell(tmp_path: Path, points: list) -> None:
     assert all(_kill_when(args, out, w) for w in points)
     subprocess.run(_cmd(args, out, "--resume"), check=True, capture_output=True)
     # plan.json names the plan file's path: the same plan, another folder
-    for d in (ref, out):
-        (d / "plan.json").unlink()
+    (out / "plan.json").unlink()
     _check_same(ref, out)
 
 
@@ -164,22 +181,24 @@ class _Fraction:
         self.fraction = fraction
 
 
-def test_lbl_killed_in_the_capture_and_in_the_fit_resumes_identically(tmp_path):
-    _lbl(tmp_path, [_last_fifth_of_capture(N_GROUPS_LBL - 1), _in_fit])
+def test_lbl_killed_in_the_capture_and_in_the_fit_resumes_identically(tmp_path, lbl_ref):
+    _lbl(lbl_ref, tmp_path, [_last_fifth_of_capture(N_GROUPS_LBL - 1), _in_fit])
 
 
-def test_cornell_killed_in_the_measurement_and_in_the_fit_resumes_identically(tmp_path):
+def test_cornell_killed_in_the_measurement_and_in_the_fit_resumes_identically(
+    tmp_path, cornell_ref
+):
     rng = np.random.default_rng(15)
-    _cornell(tmp_path, [_Fraction(float(rng.uniform(0.2, 0.6))), _in_fit])
+    _cornell(cornell_ref, tmp_path, [_Fraction(float(rng.uniform(0.2, 0.6))), _in_fit])
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(3))
-def test_random_kill_points_sweep(tmp_path, seed):
+def test_random_kill_points_sweep(tmp_path, seed, lbl_ref, cornell_ref):
     rng = np.random.default_rng(seed)
     lbl = [_last_fifth_of_capture(int(k)) for k in sorted(rng.integers(1, N_GROUPS_LBL, 2))]
-    _lbl(tmp_path / "lbl", [*lbl, _in_fit])
-    _cornell(tmp_path / "cornell", [_Fraction(float(rng.uniform(0.1, 0.7))), _in_fit])
+    _lbl(lbl_ref, tmp_path / "lbl", [*lbl, _in_fit])
+    _cornell(cornell_ref, tmp_path / "cornell", [_Fraction(float(rng.uniform(0.1, 0.7))), _in_fit])
 
 
 def test_sigterm_stops_the_campaign_and_every_child(tmp_path):

@@ -107,6 +107,7 @@ def test_resumed_run_equals_uninterrupted_run(tmp_path):
     assert (tmp_path / "full" / "samples.csv").read_bytes() == (part / "samples.csv").read_bytes()
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_same_campaign(tmp_path):
     """Incidence angles captured, saved and reduced in 2 forked workers (plots drawn by the
     plot worker) give bit-identical samples, fit and raw files, and a resume from the pool's

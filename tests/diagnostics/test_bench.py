@@ -64,6 +64,7 @@ def test_sample_design():
         bench.sample_design(1)
 
 
+@pytest.mark.slow
 def test_quick_bench_runs_fast_and_reports_waiting():
     t0 = time.process_time()  # CPU time: robust to other jobs sharing the machine
     rep = bench.run_bench(quick=True)
