@@ -674,7 +674,7 @@ def run_cornell_campaign(
             config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
             plan_kw=plan_kw, through_drivers=through_drivers, effects=effects,
             instrument_seed=instrument_seed, reference_every=reference_every,
-            corrections=corrections,
+            corrections=corrections, fit=fit,
         )  # fmt: skip
         t_plan = time.perf_counter() - t0
         try:
@@ -825,7 +825,7 @@ def _prepare(
     material: str, plan: Any, *, noise: Any, seed: Any, out: Any, reference: str, config: Any,
     resolution_deg: float, max_geometries: int | None, plan_kw: dict | None,
     through_drivers: bool, effects: Any = None, instrument_seed: int | None = None,
-    reference_every: int | None = None, corrections: dict | None = None,
+    reference_every: int | None = None, corrections: dict | None = None, fit: bool = True,
 ) -> _Setup:  # fmt: skip
     """Check the inputs, realise the true instrument, build the ordered plan (refusing the
     geometries whose field of view leaves the lit spot, when asked) and write
@@ -866,7 +866,8 @@ def _prepare(
         p, n_refused = _refuse_footprint(p, lab, knowledge)
     from gonio.campaign.determined import cornell_preflight
 
-    cornell_preflight(p, material, lab)  # a plan that cannot determine the model: refused
+    if fit:  # a plan that cannot determine the model it will fit: refused
+        cornell_preflight(p, material, lab)
     outp = Path(out) if out is not None else None
     settings = {
         "material": material,
