@@ -406,16 +406,14 @@ def read_plan_file(path: Any) -> dict[str, Any]:
     "theta_i_deg": [...], "rotations_deg": [...], "restandard_every": N, ...}`` → the
     :class:`Plan` fields of :data:`PLAN_FILE_FIELDS` it sets (checked again by
     :meth:`Plan.resolved`). A ``ValueError`` names the file and what is wrong."""
-    import json
     from pathlib import Path
+
+    from gonio.io.jsonfile import read_json
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"plan file {str(p)!r} does not exist")
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"plan file {str(p)!r}: not JSON ({exc})") from None
+    d = read_json(p)  # (depth-limited; not JSON: a FileFormatError naming the file)
     if not isinstance(d, dict) or d.get("instrument", "lbl") != "lbl":
         raise ValueError(f"plan file {str(p)!r}: expected a JSON object with instrument 'lbl'")
     if "theta_i_deg" not in d:

@@ -232,10 +232,12 @@ def read_astm(path: str | os.PathLike) -> BRDFSamples:
         raise ValueError(f"{path}: ANGLE_UNITS {header['ANGLE_UNITS']!r}; expected deg")
     meta: dict[str, Any] = {}
     if "GONIO" in header:
-        try:
-            meta = dict(json.loads(header.pop("GONIO")))
-        except (json.JSONDecodeError, TypeError) as exc:
-            raise ValueError(f"{path}: GONIO header is not a JSON object ({exc})") from None
+        from gonio.io.jsonfile import loads
+
+        doc = loads(header.pop("GONIO"), f"{path}: GONIO header")  # (depth-limited)
+        if not isinstance(doc, dict):
+            raise ValueError(f"{path}: GONIO header is not a JSON object")
+        meta = dict(doc)
     for k, v in header.items():
         if k not in ("WAVELENGTHS_NM", "NUM_POINTS", "GONIO"):
             meta.setdefault(f"astm_{k.lower()}", v)

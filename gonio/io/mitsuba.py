@@ -436,10 +436,14 @@ def read_bsdf(path: str | os.PathLike) -> MeasuredTable:
             raise ValueError(f"{path}: field {k!r} holds non-finite values")
     meta: dict = {}
     if "gonio" in f:
+        from gonio.io.jsonfile import loads
+
         try:
-            meta = json.loads(bytes(f["gonio"]).decode())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            meta = loads(bytes(f["gonio"]).decode(), f"{path}: field 'gonio'")
+        except UnicodeDecodeError as exc:
             raise ValueError(f"{path}: field 'gonio' is not JSON ({exc})") from None
+        if not isinstance(meta, dict):
+            raise ValueError(f"{path}: field 'gonio' is not a JSON object")
     kind = "spectral" if spectral else ("grey" if meta.get("channels") == "grey" else "rgb")
     wl = np.asarray(f["wavelengths"], np.float64) if spectral else None
     return MeasuredTable(f, kind, wl, meta)

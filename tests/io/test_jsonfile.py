@@ -96,6 +96,12 @@ def _sidecar(path):
     return read_metadata(path.with_name(path.name.removesuffix(".json")))
 
 
+def _lbl_plan(path):
+    from gonio.campaign.plan import read_plan_file
+
+    return read_plan_file(path)
+
+
 def _lens_doc():
     from gonio.simulator.lenses import FisheyeLens
 
@@ -125,6 +131,9 @@ SEEDS = {
                                    "fixed": {"n_samples": 300}}),
     "sweep_task.json": (_summary, lambda: {"complete": True, "task": {"a": 1}}),
     "lens.json": (_lens, _lens_doc),
+    "designed_plan.json": (_lbl_plan, lambda: {"instrument": "lbl", "theta_i_deg": [10.0, 40.0],
+                                               "rotations_deg": [0.0, 90.0],
+                                               "restandard_every": 0}),
     "m.tif.json": (_sidecar, lambda: {"exposure_s": 0.01, "f_number": 8.0, "sensor": {
         "adc_bits": 12, "response_gamma": 1.0, "response": "linear"}}),
 }  # fmt: skip
