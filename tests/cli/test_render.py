@@ -38,7 +38,8 @@ def test_render_options(tmp_path):
         [
             "render", "--model", "ward", "--param", "alpha_x=0.08", "--param", "alpha_y=0.08",
             "--mirror", "hemisphere", "--lens", "equisolid", "--exposure", "0.005",
-            "--width", "128", "--height", "96", "--no-noise", "--binning", "108x80", "--out", str(out),
+            "--width", "128", "--height", "96", "--no-noise", "--binning", "108x80",
+            "--out", str(out),
         ]
     )  # fmt: skip
     assert rc == 0
