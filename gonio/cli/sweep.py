@@ -63,14 +63,30 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--dry-run", action="store_true", help="validate the spec and list the tasks only"
     )
-    parser.add_argument("-q", "--quiet", action="store_true", help="no per-task progress lines")
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress bar, no per-task lines"
+    )
     add_json_option(parser)
+
+
+def _time_left(elapsed: float, ran: int, left: int) -> str:
+    """``"~3.2 min left"``: the tasks left at the mean pace of the tasks run so far (tasks
+    finished by an earlier run took no time and do not count); ``"? left"`` before the first."""
+    if left == 0:
+        return "0 s left"
+    if ran == 0:
+        return "? left"
+    s = elapsed / ran * left
+    if s < 90:
+        return f"~{s:.0f} s left"
+    return f"~{s / 60:.1f} min left" if s < 5400 else f"~{s / 3600:.1f} h left"
 
 
 def run(args) -> int:
     from pathlib import Path
 
     from gonio.campaign import sweep
+    from gonio.campaign.progress import Progress
 
     check_outputs({"spec": args.spec}, {"--out": args.out, "--json": args.json})
     spec = sweep.load_spec(args.spec)
@@ -91,19 +107,22 @@ def run(args) -> int:
     else:
         executor = "inprocess"
     out = Path(check_output_dir(args.out or f"sweep_{spec.name}", "--out"))
-    done = [0]
+    bar = Progress(len(tasks), f"sweep {spec.name}", quiet=args.quiet, min_time=0.0,
+                   note=_time_left(0.0, 0, len(tasks)))  # fmt: skip
+    done, ran = [0], [0]
 
     def progress(res: dict) -> None:
         done[0] += 1
-        if args.quiet:
-            return
         if "error" in res:
             state = f"FAILED {res['error']}"
         elif res.get("skipped"):
             state = "done earlier, skipped"
         else:
             state = f"{res['wall_s']:.2f} s"
-        print(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}", file=sys.stderr)
+            ran[0] += 1
+        if not args.quiet:
+            bar.write(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}")
+        bar.update(note=_time_left(bar.elapsed, ran[0], len(tasks) - done[0]))
 
     failed = None
     try:
@@ -121,6 +140,8 @@ def run(args) -> int:
         )
     except sweep.TaskFailed as exc:
         failed, result = exc, exc.result
+    finally:
+        bar.close()
     agg = sweep.aggregate(result.rows, spec)
     if agg:
         metric = sweep._headline_metric(spec, result.rows)
