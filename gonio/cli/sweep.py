@@ -59,6 +59,13 @@ def add_arguments(parser) -> None:
         help="Dask: fail the waiting tasks when the cluster has had no worker for S seconds "
         "(default 60)",
     )
+    parser.add_argument(
+        "--raw",
+        choices=("keep", "compressed", "none"),
+        default=None,
+        help="what each task run keeps of its campaign's raw frames: keep them, compress them "
+        "(lossless) or none (default: the spec's 'raw', none if it names none)",
+    )
     parser.add_argument("--no-plot", action="store_true", help="do not write summary.png")
     parser.add_argument(
         "--dry-run", action="store_true", help="validate the spec and list the tasks only"
@@ -82,11 +89,16 @@ def _time_left(elapsed: float, ran: int, left: int) -> str:
     return f"~{s / 60:.1f} min left" if s < 5400 else f"~{s / 3600:.1f} h left"
 
 
+def _megabytes(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
+
+
 def run(args) -> int:
     from pathlib import Path
 
     from gonio.campaign import sweep
     from gonio.campaign.progress import Progress
+    from gonio.campaign.raw import disk_usage
 
     check_outputs({"spec": args.spec}, {"--out": args.out, "--json": args.json})
     spec = sweep.load_spec(args.spec)
@@ -137,6 +149,7 @@ def run(args) -> int:
             plot=not args.no_plot,
             progress=progress,
             no_workers_timeout=args.no_workers_timeout,
+            raw=args.raw,
         )
     except sweep.TaskFailed as exc:
         failed, result = exc, exc.result
@@ -152,7 +165,8 @@ def run(args) -> int:
         f"{len(result.rows)}/{len(tasks)} task(s) done ({result.n_run} run, "
         f"{result.n_skipped} skipped) on {executor} in {result.wall_s:.2f} s"
         + (f" (of which {result.startup_s:.2f} s cluster start-up)" if result.startup_s else "")
-        + f"; results in {out}"
+        + f"; results in {out} ({_megabytes(disk_usage(out)['total'])}; raw frames of the "
+        f"tasks run: {args.raw or spec.raw})"
     )
     if args.json:
         doc = result.to_dict()

@@ -28,14 +28,18 @@ def test_sweep_cli_runs_and_skips(tmp_path, capsys):
     assert main(["sweep", str(spec), "-o", str(out), "--json", str(tmp_path / "r.json")]) == 0
     text = capsys.readouterr()
     assert "4/4 task(s) done (4 run, 0 skipped) on inprocess" in text.out
+    assert re.search(r"results in \S+ \(\d+\.\d MB; raw frames of the tasks run: none\)", text.out)
     assert "rms_log_brdf_mean" in text.out
     assert "[4/4]" in text.err
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["n_tasks"] == 4 and doc["executor"] == "inprocess" and doc["failures"] == {}
     assert {r["noise"] for r in doc["rows"]} == {0.01, 0.1}
     assert (out / "summary.png").is_file() and (out / "results.csv").is_file()
-    assert main(["sweep", str(spec), "-o", str(out), "-q", "--processes", "2"]) == 0
-    assert "(0 run, 4 skipped) on process" in capsys.readouterr().out
+    assert (
+        main(["sweep", str(spec), "-o", str(out), "-q", "--processes", "2", "--raw", "keep"]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "(0 run, 4 skipped) on process" in text and "tasks run: keep)" in text
 
 
 def test_sweep_cli_dry_run(tmp_path, capsys):
