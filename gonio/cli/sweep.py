@@ -132,9 +132,9 @@ def run(args) -> int:
         else:
             state = f"{res['wall_s']:.2f} s"
             ran[0] += 1
+        bar.update(note=_time_left(bar.elapsed, ran[0], len(tasks) - done[0]))
         if not args.quiet:
             bar.write(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}")
-        bar.update(note=_time_left(bar.elapsed, ran[0], len(tasks) - done[0]))
 
     failed = None
     try:
