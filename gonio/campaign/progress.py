@@ -41,6 +41,8 @@ class Progress:
         Draw even when ``stream`` is not a terminal (tests).
     width : int
         Characters of the bar itself.
+    note : str, optional
+        Text after the time (e.g. an estimate of the time left; see :meth:`update`).
     """
 
     def __init__(
@@ -53,6 +55,7 @@ class Progress:
         min_time: float = 1.0,
         force: bool = False,
         width: int = 30,
+        note: str | None = None,
     ) -> None:
         if int(total) < 0:
             raise ValueError(f"total must be >= 0, got {total!r}")
@@ -61,6 +64,7 @@ class Progress:
         self.count = 0
         self.start = time.perf_counter()
         stream = stream if stream is not None else sys.stderr
+        self._stream = stream
         tty = bool(getattr(stream, "isatty", lambda: False)())
         self._bar: Any = None
         if not quiet and (tty or force):
@@ -68,10 +72,9 @@ class Progress:
 
             self._bar = tqdm(
                 total=self.total, desc=label, file=stream, delay=float(min_time), leave=False,
-                ascii=".#", mininterval=0.1, dynamic_ncols=False,
-                bar_format="{desc} [{bar:WIDTH}] {n_fmt}/{total_fmt} {elapsed_s:.1f} s".replace(
-                    "WIDTH", str(int(width))
-                ),
+                ascii=".#", mininterval=0.1, dynamic_ncols=False, postfix=note,
+                bar_format="{desc} [{bar:WIDTH}] {n_fmt}/{total_fmt} {elapsed_s:.1f} s{postfix}"
+                .replace("WIDTH", str(int(width))),
             )  # fmt: skip
 
     @property
@@ -79,17 +82,27 @@ class Progress:
         """Whether the bar can appear."""
         return self._bar is not None
 
-    def update(self, n: int = 1, label: str | None = None) -> None:
-        """Advance by ``n`` steps (and optionally change the label)."""
+    def update(self, n: int = 1, label: str | None = None, note: str | None = None) -> None:
+        """Advance by ``n`` steps (and optionally change the label, or the ``note`` after
+        the time, e.g. an estimate of the time left)."""
         self.count += int(n)
         if label is not None:
             self.label = label
         if self._bar is not None:
             if label is not None:
                 self._bar.set_description_str(label, refresh=False)
+            if note is not None:
+                self._bar.set_postfix_str(note, refresh=False)
             self._bar.update(int(n))
             if self.count >= self.total and self.elapsed >= self._bar.delay:
                 self._bar.refresh()  # the last step is always shown (tqdm may skip it)
+
+    def write(self, line: str) -> None:
+        """Print ``line`` to the stream above the bar (which is redrawn below it)."""
+        if self._bar is not None:
+            self._bar.write(line, file=self._stream)
+        else:
+            print(line, file=self._stream)
 
     def close(self) -> None:
         """Clear the bar's line (if it was drawn)."""

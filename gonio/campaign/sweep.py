@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from gonio.campaign.blas import SingleThreadBLAS as _SingleThreadBLAS
+from gonio.campaign.raw import RAW_CHOICES, disk_usage, keep_raw
 from gonio.io.atomic import atomic_write_bytes
 
 __all__ = [
@@ -80,7 +81,9 @@ __all__ = [
 
 EXECUTORS = ("inprocess", "process", "dask")
 SUMMARY = "sweep_task.json"  # the completion record of a task folder
-_SPEC_KEYS = ("name", "description", "task", "materials", "seeds", "settings", "fixed", "plot")
+_SPEC_KEYS = (
+    "name", "description", "task", "materials", "seeds", "settings", "fixed", "plot", "raw",
+)  # fmt: skip
 
 TaskFn = Callable[[dict[str, Any], Path], Mapping[str, Any]]
 
@@ -175,6 +178,7 @@ class SweepSpec:
     description: str = ""
     plot: str = ""
     source: str = ""
+    raw: str = "none"
 
     @property
     def n_tasks(self) -> int:
@@ -195,6 +199,7 @@ class SweepSpec:
             "settings": {k: list(v) for k, v in self.settings.items()},
             "fixed": dict(self.fixed),
             "plot": self.plot,
+            "raw": self.raw,
         }
 
 
@@ -337,6 +342,7 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
             f"{where}: the grid has {n_tasks} points (materials x settings x seeds), more "
             f"than the {MAX_TASKS} a sweep runs"
         )
+    raw = _check_raw(data.get("raw", "none"), f"{where}: 'raw'")
     clash = sorted(set(fixed) & set(settings))
     if clash:
         raise ValueError(f"{where}: key(s) {clash} appear in both [settings] and [fixed]")
@@ -350,6 +356,7 @@ def spec_from_dict(data: Any, source: str = "<dict>") -> SweepSpec:
         description=data.get("description", ""),
         plot=data.get("plot", ""),
         source=source,
+        raw=raw,
     )
     validate = _validator(task)
     if validate is not None:
@@ -367,7 +374,9 @@ def load_spec(path: str | os.PathLike) -> SweepSpec:
     Keys: ``task`` (a registered task name, :func:`task_names`), ``materials`` (list of
     names), ``seeds`` (a count ``n`` meaning ``0..n-1``, or a list of integers), ``settings``
     (table of grid axes, each a non-empty list), ``fixed`` (table passed to every task),
-    optional ``name``, ``description``, ``plot`` (metric shown in the summary plot).
+    optional ``name``, ``description``, ``plot`` (metric shown in the summary plot), ``raw``
+    (what a task keeps of its raw frames: ``"none"``, the default, ``"compressed"`` or
+    ``"keep"``; see :func:`run_task`).
 
     Examples
     --------
@@ -391,6 +400,13 @@ def load_spec(path: str | os.PathLike) -> SweepSpec:
     from gonio.io.jsonfile import read_document
 
     return read_document(p, lambda d: spec_from_dict(d, str(p)), what="a sweep spec")
+
+
+def _check_raw(raw: Any, what: str) -> str:
+    """``raw`` if it is one of :data:`gonio.campaign.raw.RAW_CHOICES`, else a clear error."""
+    if raw not in RAW_CHOICES:
+        raise ValueError(f"{what} must be one of {', '.join(RAW_CHOICES)}, got {raw!r}")
+    return raw
 
 
 def _canonical(obj: Any) -> str:
@@ -524,6 +540,7 @@ def run_task(
     task: Mapping[str, Any],
     root: str | os.PathLike,
     fn: TaskFn | str | None = None,
+    raw: str = "none",
 ) -> dict[str, Any]:
     """Run one task idempotently under ``root/tasks/<task id>`` and return its summary.
 
@@ -533,7 +550,16 @@ def run_task(
     and wall time go to ``sweep_task.json`` (written atomically) and the folder is renamed into
     place. If another worker finished the same task meanwhile, its result wins and ours is
     discarded.
+
+    ``raw`` says what the finished task keeps of the raw frames in its folder's ``raw``
+    sub-folder, where a campaign writes them (:func:`gonio.campaign.raw.keep_raw`: ``"none"``
+    removes them, ``"compressed"`` re-encodes them losslessly, ``"keep"`` leaves them): a
+    sweep needs the results, and a 24-task campaign sweep kept 400 MB of frames. It is
+    applied before the folder moves into place; a finished task is recognised by its
+    ``sweep_task.json`` alone, so a re-run skips it whatever it kept. The summary records
+    ``raw`` and the folder's ``disk_bytes``.
     """
+    _check_raw(raw, "raw")
     task = dict(task)
     tid = task_id(task)
     tasks_dir = Path(root) / "tasks"
@@ -553,11 +579,14 @@ def run_task(
         with _SingleThreadBLAS(), _TaskMalloc():
             metrics = _clean_metrics(fn(task, tmp), tid)
         wall = time.perf_counter() - t0
+        keep_raw(tmp, raw)
         summary = {
             "task_id": tid,
             "task": task,
             "metrics": metrics,
             "wall_s": wall,
+            "raw": raw,
+            "disk_bytes": disk_usage(tmp)["total"],
             "host": os.uname().nodename,
             "pid": os.getpid(),
             "complete": True,
@@ -600,14 +629,16 @@ class _ByValue:
         return cloudpickle.loads(self.data)
 
 
-def _run_task_entry(task: dict, root: str, fn: TaskFn | str | _ByValue | None) -> dict:
+def _run_task_entry(
+    task: dict, root: str, fn: TaskFn | str | _ByValue | None, raw: str = "none"
+) -> dict:
     """Picklable entry point for worker processes: returns the summary or an error record."""
     import traceback
 
     try:
         if isinstance(fn, _ByValue):
             fn = fn.load()
-        return run_task(task, root, fn)
+        return run_task(task, root, fn, raw)
     except Exception as exc:  # reported per task, the sweep carries on
         return {
             "task_id": task_id(task),
@@ -649,14 +680,14 @@ class SweepResult:
         }
 
 
-def _run_inprocess(tasks, root, fn, progress):
+def _run_inprocess(tasks, root, fn, progress, raw):
     for t in tasks:
-        res = _run_task_entry(t, root, fn)
+        res = _run_task_entry(t, root, fn, raw)
         progress(res)
         yield res
 
 
-def _run_process(tasks, root, fn, workers, retries, progress):
+def _run_process(tasks, root, fn, workers, retries, progress, raw):
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -665,7 +696,9 @@ def _run_process(tasks, root, fn, workers, retries, progress):
     while pending:
         broken = False
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = {pool.submit(_run_task_entry, t, root, fn): tid for tid, t in pending.items()}
+            futs = {
+                pool.submit(_run_task_entry, t, root, fn, raw): tid for tid, t in pending.items()
+            }
             try:
                 for fut in as_completed(futs):
                     tid = futs[fut]
@@ -758,7 +791,7 @@ def _no_dask() -> ValueError:
     )
 
 
-def _run_dask(tasks, root, fn, client, progress, no_workers_timeout):
+def _run_dask(tasks, root, fn, client, progress, no_workers_timeout, raw):
     """Submit every task; yield summaries (or error records) as they finish.
 
     Bounded everywhere: waits poll every 2 s (or half the timeout); a result whose worker is
@@ -773,7 +806,7 @@ def _run_dask(tasks, root, fn, client, progress, no_workers_timeout):
     for t in tasks:
         tid = task_id(t)
         key = f"gonio-sweep-{tid}-{uuid.uuid4().hex[:8]}"
-        futs[client.submit(_run_task_entry, t, root, ship, key=key, pure=False)] = tid
+        futs[client.submit(_run_task_entry, t, root, ship, raw, key=key, pure=False)] = tid
     pending = set(futs)
     poll = min(2.0, no_workers_timeout / 2)
     no_workers_since: float | None = None
@@ -841,6 +874,7 @@ def run_sweep(
     plot: bool = True,
     progress: Callable[[dict], None] | None = None,
     no_workers_timeout: float = 60.0,
+    raw: str | None = None,
 ) -> SweepResult:
     """Run every task of ``spec`` under ``root`` and gather the results table.
 
@@ -873,6 +907,9 @@ def run_sweep(
     no_workers_timeout
         For ``"dask"``: seconds the cluster may have no worker at all while tasks wait; then
         the waiting tasks fail (and are retried ``retries`` times) instead of waiting forever.
+    raw
+        What each task run now keeps of its raw frames (see :func:`run_task`); default the
+        spec's ``raw`` (``"none"`` unless it says otherwise).
 
     Raises
     ------
@@ -883,6 +920,7 @@ def run_sweep(
     if not isinstance(spec, SweepSpec):
         spec = load_spec(spec)
     _check_run_options(executor, scheduler, dask_local, client, retries, no_workers_timeout)
+    raw = _check_raw(spec.raw if raw is None else raw, "raw")
     root = Path(root).resolve()  # workers elsewhere resolve relative paths differently
     root.mkdir(parents=True, exist_ok=True)
     tasks = expand(spec)
@@ -902,10 +940,10 @@ def run_sweep(
 
     def execute(batch: list[dict]) -> Iterator[dict]:
         if executor == "inprocess":
-            return _run_inprocess(batch, str(root), fn, progress)
+            return _run_inprocess(batch, str(root), fn, progress, raw)
         if executor == "process":
-            return _run_process(batch, str(root), fn, w, retries, progress)
-        return _run_dask(batch, str(root), fn, client, progress, no_workers_timeout)
+            return _run_process(batch, str(root), fn, w, retries, progress, raw)
+        return _run_dask(batch, str(root), fn, client, progress, no_workers_timeout, raw)
 
     with stack:
         _run_with_retries(execute, todo, results, retries)

@@ -31,6 +31,8 @@ COMMAND = "render"
 #: (measured: 199 MB at 640 x 480, 489 MB at 1920 x 1440), so 4096 x 4096 peaks near 2 GB;
 #: a side of 100000 pixels asked for one 149 GiB array before failing.
 MAX_SIDE = 4096
+#: ``--binning`` given without WxH: the old flag's meaning (Ward's 108 x 80), with a note.
+_BARE_BINNING = "bare"
 HELP = "render a raw LBL gonioreflectometer image (16-bit PNG/TIFF + JSON side-car)"
 
 
@@ -87,7 +89,15 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--seed", type=int, default=None, help="noise seed (recorded)")
     parser.add_argument("--no-noise", action="store_true", help="noise-free image")
-    parser.add_argument("--binning", action="store_true", help="reduce to Ward's 108 x 80")
+    parser.add_argument(
+        "--binning",
+        nargs="?",
+        const=_BARE_BINNING,
+        default=None,
+        metavar="WxH",
+        help="digitise the image to WxH pixels, at most --width x --height, as `gonio campaign "
+        "--binning` (e.g. 108x80, Ward's; default none: full resolution)",
+    )
     parser.add_argument(
         "--bracket",
         action="store_true",
@@ -100,6 +110,27 @@ def add_arguments(parser) -> None:
         "--plot", metavar="PATH", type=output_file, help="false-colour PNG with the angle grid"
     )
     add_json_option(parser)
+
+
+def _binning(text: str | None, width: int, height: int) -> tuple[int, int] | None:
+    """``--binning`` as ``gonio campaign`` reads it ('108x80'; '0x0' or absent: none), bounded
+    by the image; the bare flag of earlier versions still means 108x80, with a note."""
+    import sys
+
+    from gonio.cli.campaign import parse_binning
+
+    if text == _BARE_BINNING:
+        print("note: --binning takes WxH now; write --binning 108x80", file=sys.stderr)
+        text = "108x80"
+    b = parse_binning(text)
+    if b is None or b == (0, 0):
+        return None
+    if not (1 <= b[0] <= width and 1 <= b[1] <= height):
+        raise ValueError(
+            f"--binning {text!r}: expected WxH between 1x1 and the image's {width}x{height} "
+            "(0x0: none)"
+        )
+    return b
 
 
 def _sample(args):
@@ -192,7 +223,8 @@ def run(args) -> int:
     )
     sample = _sample(args)
     th, ph = math.radians(args.theta_i), math.radians(args.phi_i)
-    kw = dict(exposure=args.exposure, noise=not args.no_noise, binning=args.binning or None)
+    binning = _binning(args.binning, args.width, args.height)
+    kw = dict(exposure=args.exposure, noise=not args.no_noise, binning=binning)
     rng = args.seed
     if args.bracket:
         shots = inst.bracket(sample, th, ph, rng=rng, **kw)

@@ -59,18 +59,46 @@ def add_arguments(parser) -> None:
         help="Dask: fail the waiting tasks when the cluster has had no worker for S seconds "
         "(default 60)",
     )
+    parser.add_argument(
+        "--raw",
+        choices=("keep", "compressed", "none"),
+        default=None,
+        help="what each task run keeps of its campaign's raw frames: keep them, compress them "
+        "(lossless) or none (default: the spec's 'raw', none if it names none)",
+    )
     parser.add_argument("--no-plot", action="store_true", help="do not write summary.png")
     parser.add_argument(
         "--dry-run", action="store_true", help="validate the spec and list the tasks only"
     )
-    parser.add_argument("-q", "--quiet", action="store_true", help="no per-task progress lines")
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress bar, no per-task lines"
+    )
     add_json_option(parser)
+
+
+def _time_left(elapsed: float, ran: int, left: int) -> str:
+    """``"~3.2 min left"``: the tasks left at the mean pace of the tasks run so far (tasks
+    finished by an earlier run took no time and do not count); ``"? left"`` before the first."""
+    if left == 0:
+        return "0 s left"
+    if ran == 0:
+        return "? left"
+    s = elapsed / ran * left
+    if s < 90:
+        return f"~{s:.0f} s left"
+    return f"~{s / 60:.1f} min left" if s < 5400 else f"~{s / 3600:.1f} h left"
+
+
+def _megabytes(n: int) -> str:
+    return f"{n / 1e6:.1f} MB"
 
 
 def run(args) -> int:
     from pathlib import Path
 
     from gonio.campaign import sweep
+    from gonio.campaign.progress import Progress
+    from gonio.campaign.raw import disk_usage
 
     check_outputs({"spec": args.spec}, {"--out": args.out, "--json": args.json})
     spec = sweep.load_spec(args.spec)
@@ -91,19 +119,22 @@ def run(args) -> int:
     else:
         executor = "inprocess"
     out = Path(check_output_dir(args.out or f"sweep_{spec.name}", "--out"))
-    done = [0]
+    bar = Progress(len(tasks), f"sweep {spec.name}", quiet=args.quiet, min_time=0.0,
+                   note=_time_left(0.0, 0, len(tasks)))  # fmt: skip
+    done, ran = [0], [0]
 
     def progress(res: dict) -> None:
         done[0] += 1
-        if args.quiet:
-            return
         if "error" in res:
             state = f"FAILED {res['error']}"
         elif res.get("skipped"):
             state = "done earlier, skipped"
         else:
             state = f"{res['wall_s']:.2f} s"
-        print(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}", file=sys.stderr)
+            ran[0] += 1
+        bar.update(note=_time_left(bar.elapsed, ran[0], len(tasks) - done[0]))
+        if not args.quiet:
+            bar.write(f"[{done[0]}/{len(tasks)}] {res['task_id']}: {state}")
 
     failed = None
     try:
@@ -118,9 +149,12 @@ def run(args) -> int:
             plot=not args.no_plot,
             progress=progress,
             no_workers_timeout=args.no_workers_timeout,
+            raw=args.raw,
         )
     except sweep.TaskFailed as exc:
         failed, result = exc, exc.result
+    finally:
+        bar.close()
     agg = sweep.aggregate(result.rows, spec)
     if agg:
         metric = sweep._headline_metric(spec, result.rows)
@@ -131,7 +165,8 @@ def run(args) -> int:
         f"{len(result.rows)}/{len(tasks)} task(s) done ({result.n_run} run, "
         f"{result.n_skipped} skipped) on {executor} in {result.wall_s:.2f} s"
         + (f" (of which {result.startup_s:.2f} s cluster start-up)" if result.startup_s else "")
-        + f"; results in {out}"
+        + f"; results in {out} ({_megabytes(disk_usage(out)['total'])}; raw frames of the "
+        f"tasks run: {args.raw or spec.raw})"
     )
     if args.json:
         doc = result.to_dict()

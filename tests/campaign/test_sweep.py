@@ -155,6 +155,10 @@ def test_toml_and_json_specs_agree(tmp_path):
             {"task": "campaign", "materials": ["unobtainium"], "seeds": 1},
             "unknown material 'unobtainium'",
         ),
+        (
+            {**SPEC, "raw": "lzw"},
+            "'raw' must be one of keep, compressed, none, got 'lzw'",
+        ),
     ],
 )
 def test_bad_specs_name_the_problem(tmp_path, data, match):
@@ -547,3 +551,43 @@ def test_dask_local_cluster_listens_on_loopback_only():
         conns = psutil.Process().net_connections("tcp")
         hosts = {c.laddr.ip for c in conns if c.status == psutil.CONN_LISTEN}
     assert hosts == {"127.0.0.1"}
+
+
+def test_campaign_sweep_keeps_no_raw_frames_unless_asked(tmp_path):
+    """A sweep's campaigns keep no raw frames by default (the spec's ``raw``, or ``raw=``,
+    can keep or compress them); the results are the same either way, and a finished task is
+    recognised on a re-run without its frames."""
+    pytest.importorskip("gonio.campaign")
+    spec = sweep.spec_from_dict(
+        {
+            "task": "campaign",
+            "materials": ["rolled_brass"],
+            "seeds": 1,
+            "fixed": {"theta_i_deg": [30.0], "preset": "ideal"},
+        }
+    )
+    assert spec.raw == "none" and spec.to_dict()["raw"] == "none"
+    a = sweep.run_sweep(spec, tmp_path / "a", plot=False)
+    (tid,) = [r["task_id"] for r in a.rows]
+    da = tmp_path / "a" / "tasks" / tid
+    assert (da / "samples.csv").is_file() and not (da / "raw").exists()
+    rec = json.loads((da / sweep.SUMMARY).read_text())
+    assert rec["raw"] == "none" and 0 < rec["disk_bytes"] < 5e6
+    again = sweep.run_sweep(spec, tmp_path / "a", plot=False, raw="keep")
+    assert (again.n_run, again.n_skipped) == (0, 1) and not (da / "raw").exists()
+
+    kept = sweep.spec_from_dict({**spec.to_dict(), "raw": "keep"})
+    b = sweep.run_sweep(kept, tmp_path / "b", plot=False)
+    db = tmp_path / "b" / "tasks" / tid
+    frames = sum(f.stat().st_size for f in (db / "raw").rglob("*.tif"))
+    rec_b = json.loads((db / sweep.SUMMARY).read_text())
+    assert rec_b["raw"] == "keep" and rec_b["disk_bytes"] >= rec["disk_bytes"] + frames > 0
+    sweep.run_sweep(spec, tmp_path / "c", plot=False, raw="compressed")
+    dc = tmp_path / "c" / "tasks" / tid
+    assert 0 < sum(f.stat().st_size for f in (dc / "raw").rglob("*.tif")) < frames
+    for name in ("samples.csv",):  # the campaign's results do not depend on what it keeps
+        assert (da / name).read_bytes() == (db / name).read_bytes() == (dc / name).read_bytes()
+    strip = [{k: v for k, v in r.items() if k != "wall_s"} for r in a.rows]
+    assert strip == [{k: v for k, v in r.items() if k != "wall_s"} for r in b.rows]
+    with pytest.raises(ValueError, match="raw must be one of keep, compressed, none"):
+        sweep.run_sweep(spec, tmp_path / "d", raw="all")

@@ -38,7 +38,8 @@ def test_render_options(tmp_path):
         [
             "render", "--model", "ward", "--param", "alpha_x=0.08", "--param", "alpha_y=0.08",
             "--mirror", "hemisphere", "--lens", "equisolid", "--exposure", "0.005",
-            "--width", "128", "--height", "96", "--no-noise", "--binning", "--out", str(out),
+            "--width", "128", "--height", "96", "--no-noise", "--binning", "108x80",
+            "--out", str(out),
         ]
     )  # fmt: skip
     assert rc == 0
@@ -48,6 +49,33 @@ def test_render_options(tmp_path):
     assert main(["render", "--sample", "none", "--width", "64", "--height", "48",
                  "--out", str(tmp_path / "bg.png")]) == 0  # fmt: skip
     assert read_image(tmp_path / "bg.png")[1]["sample"] == "none"
+
+
+def test_render_binning_is_wxh_as_in_campaign(tmp_path, capsys):
+    """``--binning`` takes WxH as ``gonio campaign --binning`` does; 0x0 is none; the bare
+    flag of earlier versions still means Ward's 108x80 and says the new form."""
+    base = ["render", "--sample", "standard", "--width", "128", "--height", "96", "--no-noise"]
+    assert main([*base, "--binning", "64x48", "--out", str(tmp_path / "a.png")]) == 0
+    img, meta = read_image(tmp_path / "a.png")
+    assert img.shape == (48, 64) and tuple(meta["binning"]) == (64, 48)
+    assert main([*base, "--binning", "0x0", "--out", str(tmp_path / "b.png")]) == 0
+    assert read_image(tmp_path / "b.png")[0].shape == (96, 128)
+    capsys.readouterr()
+    assert main([*base, "--binning", "--out", str(tmp_path / "c.png")]) == 0
+    assert read_image(tmp_path / "c.png")[0].shape == (80, 108)
+    assert "write --binning 108x80" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [("108", "expected WxH, e.g. 108x80"), ("200x80", "the image's 128x96"), ("0x5", "1x1")],
+)
+def test_render_bad_binning(tmp_path, capsys, value, match):
+    argv = ["render", "--sample", "none", "--width", "128", "--height", "96"]
+    rc = main([*argv, "--binning", value, "--out", str(tmp_path / "x.png")])
+    assert rc == 2
+    assert match in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
 
 
 def test_render_bracket(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 
 import pytest
@@ -27,14 +28,18 @@ def test_sweep_cli_runs_and_skips(tmp_path, capsys):
     assert main(["sweep", str(spec), "-o", str(out), "--json", str(tmp_path / "r.json")]) == 0
     text = capsys.readouterr()
     assert "4/4 task(s) done (4 run, 0 skipped) on inprocess" in text.out
+    assert re.search(r"results in \S+ \(\d+\.\d MB; raw frames of the tasks run: none\)", text.out)
     assert "rms_log_brdf_mean" in text.out
     assert "[4/4]" in text.err
     doc = json.loads((tmp_path / "r.json").read_text())
     assert doc["n_tasks"] == 4 and doc["executor"] == "inprocess" and doc["failures"] == {}
     assert {r["noise"] for r in doc["rows"]} == {0.01, 0.1}
     assert (out / "summary.png").is_file() and (out / "results.csv").is_file()
-    assert main(["sweep", str(spec), "-o", str(out), "-q", "--processes", "2"]) == 0
-    assert "(0 run, 4 skipped) on process" in capsys.readouterr().out
+    assert (
+        main(["sweep", str(spec), "-o", str(out), "-q", "--processes", "2", "--raw", "keep"]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "(0 run, 4 skipped) on process" in text and "tasks run: keep)" in text
 
 
 def test_sweep_cli_dry_run(tmp_path, capsys):
@@ -88,3 +93,45 @@ def test_bench_cli_quick(tmp_path, capsys):
     assert "unknown knob 'nope'" in capsys.readouterr().err
     assert main(["bench", "--list"]) == 0
     assert "albedo_rtol" in capsys.readouterr().out
+
+
+class _Terminal:
+    """A stderr that says it is a terminal (the sweep's bar is drawn only on one)."""
+
+    def __init__(self) -> None:
+        self.text = ""
+
+    def write(self, s: str) -> int:
+        self.text += s
+        return len(s)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return True
+
+
+def test_sweep_cli_progress_on_a_terminal_not_when_quiet(tmp_path, monkeypatch, capsys):
+    spec = tmp_path / "s.toml"
+    spec.write_text(TOML.replace("seeds = 2", "seeds = 1"))
+    term = _Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "a"), "--no-plot"]) == 0
+    assert "sweep cli [" in term.text  # the bar, with its own label
+    assert "0/2 0.0 s, ? left" in term.text  # before the first task ends
+    assert re.search(r"2/2 \d+\.\d s, 0 s left", term.text)  # done/total, elapsed, left
+    assert re.search(r"\[2/2\] rolled_brass-s0-\w+: \d", term.text)  # per-task lines
+    term.text = ""
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "b"), "--no-plot", "-q"]) == 0
+    assert term.text == ""
+    capsys.readouterr()
+
+
+def test_sweep_time_left_reads_in_its_unit():
+    from gonio.cli.sweep import _time_left
+
+    assert _time_left(10.0, 0, 4) == "? left" and _time_left(10.0, 2, 0) == "0 s left"
+    assert _time_left(10.0, 2, 3) == "~15 s left"
+    assert _time_left(100.0, 2, 3) == "~2.5 min left"
+    assert _time_left(3600.0, 1, 2) == "~2.0 h left"
