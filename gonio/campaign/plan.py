@@ -408,12 +408,15 @@ def read_plan_file(path: Any) -> dict[str, Any]:
     :meth:`Plan.resolved`). A ``ValueError`` names the file and what is wrong."""
     from pathlib import Path
 
-    from gonio.io.jsonfile import read_json
+    from gonio.io.jsonfile import FileFormatError, read_json
 
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"plan file {str(p)!r} does not exist")
-    d = read_json(p)  # (depth-limited; not JSON: a FileFormatError naming the file)
+    try:
+        d = read_json(p)  # (depth-limited)
+    except FileFormatError as exc:
+        raise FileFormatError(f"plan file: not JSON as gonio design writes it: {exc}") from None
     if not isinstance(d, dict) or d.get("instrument", "lbl") != "lbl":
         raise ValueError(f"plan file {str(p)!r}: expected a JSON object with instrument 'lbl'")
     if "theta_i_deg" not in d:
