@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gonio._validate import UNIT_TOLERANCE, as_unit_directions
-from gonio.brdf._jit import njit_or_none
+from gonio.brdf._jit import is_interpreted, njit_or_none
 from gonio.brdf._lobes import half_vector_albedo, half_vector_sum, refine_nodes
 from gonio.brdf.base import BRDF, Param, register
 from gonio.geometry import cosine_hemisphere_pdf, square_to_hemisphere
@@ -149,6 +149,8 @@ def kernel(name: str) -> Any:
     the model's mode, ``_PRE_MODES[name]``, as its last argument. Compilation is lazy:
     importing :mod:`gonio.brdf` does not import numba.
     """
+    if is_interpreted():  # (numpy paths: see gonio.brdf._jit.interpreted)
+        return None
     key = "pre" if name in _PRE_MODES else name
     if key in _KERNELS:
         return _KERNELS[key]

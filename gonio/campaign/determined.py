@@ -250,16 +250,19 @@ def lbl_preflight(
     :func:`gonio.campaign.lbl._fit_setup`), then the material's lobe (``truth``) against
     the instrument's angular resolution
     (:func:`gonio.campaign.resolution.resolution_warnings`). Returns the warnings."""
+    from gonio.brdf._jit import interpreted
     from gonio.campaign.resolution import lbl_resolution, resolution_warnings
 
     wi, wo = hemisphere_geometries(plan.theta_i_deg, plan.rotations_deg)
     angles = ", ".join(f"{a:g}" for a in plan.theta_i_deg)
-    out = check_plan(template, wi, wo, fixed=fit_kw.get("fixed"),
-                     what=f"the plan (incidence {angles} deg)")  # fmt: skip
-    res = lbl_resolution(plan, instrument) if truth is not None else None
-    if res is not None:
-        theta = math.radians(float(np.median(plan.theta_i_deg)))
-        out += resolution_warnings(truth, template, res, theta)
+    # a few thousand evaluations: numpy, no numba import on the campaign's serial path
+    with interpreted():
+        out = check_plan(template, wi, wo, fixed=fit_kw.get("fixed"),
+                         what=f"the plan (incidence {angles} deg)")  # fmt: skip
+        res = lbl_resolution(plan, instrument) if truth is not None else None
+        if res is not None:
+            theta = math.radians(float(np.median(plan.theta_i_deg)))
+            out += resolution_warnings(truth, template, res, theta)
     return out
 
 
