@@ -169,3 +169,25 @@ def test_bad_params() -> None:
         brdf.create("ward", alpha_y=-0.1)
     with pytest.raises(ValueError, match="rho_s"):
         brdf.create("ward", rho_s=float("nan"))
+
+
+def test_interpreted_block_takes_the_numpy_path_and_keeps_the_kernels():
+    from gonio.brdf._jit import interpreted, is_interpreted
+    from gonio.brdf.ward import kernel
+
+    m = brdf.create("ward", rho_d=0.1, rho_s=0.3, alpha_x=0.05, alpha_y=0.16)
+    rng = np.random.default_rng(3)
+    wi = rng.normal(size=(500, 3))
+    wo = rng.normal(size=(500, 3))
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]), np.abs(wo[:, 2])
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    fast = m(wi, wo)
+    with interpreted():
+        assert is_interpreted() and kernel("pre") is None
+        slow = m(wi, wo)
+    assert not is_interpreted()
+    np.testing.assert_allclose(slow, m._eval_numpy(wi, wo), rtol=0, atol=0)
+    np.testing.assert_allclose(slow, fast, rtol=1e-12)
+    if kernel("pre") is not None:  # (numba installed: the kernel is back after the block)
+        assert m._fast(wi, wo) is not None
