@@ -36,7 +36,8 @@ def test_export_bsdf_stopped_by_a_signal_leaves_no_temporary_or_child(tmp_path, 
         from gonio.cli import main
         raise SystemExit(main(["export", "bsdf", {str(table)!r}, {str(tmp_path / "out")!r}]))
     """)
-    p = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE)
+    # (cwd: not the checkout, whose gonio/ would shadow the installed package's layout)
+    p = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE, cwd=tmp_path)
     pid_file = tmp_path / "child.pid"
     t0 = time.monotonic()
     while not pid_file.exists() or not pid_file.read_text().strip():
@@ -60,7 +61,7 @@ def test_sweep_stopped_by_sigterm_cancels_its_tasks_and_ends_its_workers(tmp_pat
                     "[fixed]\ntheta_i_deg = [30.0, 40.0]\n")  # fmt: skip
     argv = ["sweep", str(spec), "--processes", "2", "--out", str(tmp_path / "out"), "-q"]
     code = f"import sys; from gonio.cli import main; sys.exit(main({argv!r}))"
-    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE)
+    p = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE, cwd=tmp_path)
     proc = psutil.Process(p.pid)
     t0 = time.monotonic()
     while len(proc.children()) < 2:
