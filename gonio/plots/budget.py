@@ -183,7 +183,9 @@ def _draw(budget, params, path, title, dpi) -> Path:
         if uc is None or not math.isfinite(uc):  # undetermined: no bar has a scale
             ax.text(0.5, 0.5, "undetermined", transform=ax.transAxes, ha="center", fontsize=6.5)
             ax.set_title(f"{p} = {budget['params'][p]:.4g}", fontsize=6.5, y=1.0)
-            ax.set_xticks([])
+            # (not set_xticks([]): the panels share their x axis, whose ticks it would remove
+            # from every panel)
+            ax.tick_params(axis="x", which="both", bottom=False, labelbottom=False)
             continue
         vals = [max(r[1][p], 1e-9) if math.isfinite(r[1][p]) else 1e-9 for r in rows]
         colours = [stat if i == 0 else (corr if r[2] else uncorr) for i, r in enumerate(rows)]
