@@ -170,6 +170,7 @@ spec = spec_from_dict(
         "seeds": [0],
         "settings": {"theta_i_deg": list(plans.values())},
         "fixed": {"rotations_deg": [0, 90]},
+        "raw": "keep",  # (a sweep keeps no raw frames unless asked: their side-cars are read below)
     }
 )
 sweep = run_sweep(spec, work / "sweep", plot=False)
@@ -180,7 +181,8 @@ for row in sweep.rows:
 
 # %%
 # Each task's folder is a complete campaign folder, with its ``summary.json`` (and budget)
-# and its raw frames. The time a plan costs on the real instrument is estimated by
+# and, as the spec asked (``"raw": "keep"``), its raw frames. The time a plan costs on the
+# real instrument is estimated by
 # :func:`gonio.simulator.lbl_timing.estimate_run_time`: the source arm's moves and settling,
 # each frame's exposure and read-out, the iris changes between the frames of a bracket, and
 # the manual steps (swapping the standard, the empty holder and the sample, rotating the
