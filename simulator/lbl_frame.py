@@ -1,6 +1,6 @@
-"""One frame of the LBL instrument: a rendered scene (:class:`~gonio.simulator.lbl_scene.
-Scene`, the light at f/1) taken through the lens at an f-number, with the lamp's output at
-the frame's time and the lens's point spread, then read out by the sensor
+"""One frame of the LBL instrument: a rendered scene (the light at f/1,
+:class:`~gonio.simulator.lbl_scene.Scene`) taken through the lens at an f-number, with the
+lamp's output at the frame's time and the lens's point spread, then read out by the sensor
 (:class:`~gonio.simulator.lbl_readout.Readout`).
 
 This part knows the lens and its aperture, the sensor's pixel pitch and ADC (for the fused
