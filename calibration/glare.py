@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from gonio.numeric import trim_mean
 
-__all__ = ["GlareOffset", "dark_region", "glare_offset", "veil", "veil_shape"]
+__all__ = ["GlareOffset", "binned_limits", "dark_region", "glare_offset", "veil", "veil_shape"]
 
 #: fewest dark pixels a glare estimate uses
 MIN_DARK_PIXELS = 200
@@ -86,6 +86,7 @@ def dark_region(
     *,
     fraction: float = 0.25,
     margin: int = DARK_MARGIN_PX,
+    min_pixels: int = MIN_DARK_PIXELS,
 ) -> NDArray[np.int64] | None:
     """Flat indices of the image-circle pixels that see no standard light, or None.
 
@@ -103,16 +104,28 @@ def dark_region(
         occluder's edge is blurred by the point-spread function and cut by pixels that
         straddle it, so a bright lobe next to it lights the first few pixels beyond it
         (:data:`DARK_MARGIN_PX`). 0 keeps them.
+    min_pixels : int
+        Fewest dark pixels an estimate uses (:data:`MIN_DARK_PIXELS`).
 
     Returns
     -------
     ndarray of int or None
-        None when fewer than :data:`MIN_DARK_PIXELS` pixels are dark.
+        None when fewer than ``min_pixels`` pixels are dark.
+
+    Notes
+    -----
+    Both pixel counts are the camera's. For a digitised image (Ward's 108 × 80 from a
+    640 × 480 camera, Ward 1992 §3) :func:`binned_limits` converts them: a margin of six
+    camera pixels is two digitised ones, and 200 camera pixels' area is six; with the camera's
+    figures the margin alone ate the lens body's shadow and on some instruments no dark
+    region was left (the veil then went uncorrected).
     """
     if not (0.0 < fraction < 1.0):
         raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
     if not (isinstance(margin, int | np.integer) and 0 <= margin <= 64):
         raise ValueError(f"margin must be an integer number of pixels in [0, 64], got {margin!r}")
+    if not (isinstance(min_pixels, int | np.integer) and min_pixels >= 1):
+        raise ValueError(f"min_pixels must be a positive integer, got {min_pixels!r}")
     s, ok_s = _longest_signal(standard)
     b, ok_b = _longest_signal(background)
     field = np.asarray(in_field, dtype=bool).ravel()
@@ -133,7 +146,40 @@ def dark_region(
         disk = (x * x + y * y <= margin * margin).astype(np.uint8)
         is_dark &= cv2.dilate(bright, disk).ravel() == 0
     dark = np.flatnonzero(is_dark)
-    return dark if dark.size >= MIN_DARK_PIXELS else None
+    return dark if dark.size >= min_pixels else None
+
+
+#: fewest dark pixels of a digitised image (:func:`binned_limits`): a trimmed mean and its
+#: scatter need a few tens
+MIN_BINNED_PIXELS = 20
+
+
+def binned_limits(camera_width: int, camera_height: int, width: int, height: int) -> tuple[int, int]:
+    """:func:`dark_region`'s ``margin`` and ``min_pixels`` for an image of ``width × height``
+    pixels digitised from a ``camera_width × camera_height`` camera (each pixel the area mean
+    of a box of camera pixels; Ward 1992 §3): the camera's :data:`DARK_MARGIN_PX` in digitised
+    pixels, plus one for the box that straddles the occluder's edge, and
+    :data:`MIN_DARK_PIXELS`' area (at least :data:`MIN_BINNED_PIXELS`). The camera's own
+    figures for a full-resolution image.
+
+    Examples
+    --------
+    >>> binned_limits(640, 480, 640, 480)
+    (6, 200)
+    >>> binned_limits(640, 480, 108, 80)
+    (2, 20)
+
+    References
+    ----------
+    .. [Ward1992] G. J. Ward, "Measuring and modeling anisotropic reflection", Computer
+       Graphics (Proc. SIGGRAPH '92) 26(2), 265-272, 1992, §3 (the 108 × 80 images).
+    """
+    bx, by = camera_width / float(width), camera_height / float(height)
+    if not (bx > 1.0 or by > 1.0):
+        return DARK_MARGIN_PX, MIN_DARK_PIXELS
+    b = max(bx, by)
+    margin = int(math.ceil(DARK_MARGIN_PX / b)) + 1
+    return margin, max(MIN_BINNED_PIXELS, int(math.ceil(MIN_DARK_PIXELS / (bx * by))))
 
 
 @dataclass(frozen=True)

@@ -220,7 +220,8 @@ def fit_status(result: Any) -> str:
         return (
             f"converged, but chi2/dof = {c:.3g}: the model does not describe the data within "
             "their noise (a model that cannot describe them, instrument effects the "
-            "reduction left, or a local minimum)"
+            "reduction left, or a local minimum); the budget holds only the effects it "
+            "names, so its U may not cover this misfit's cause: read it as a lower bound"
         )
     return "converged"
 

@@ -148,3 +148,21 @@ def test_a_captures_signal_at_chosen_pixels_is_its_whole_signal_there():
     assert np.array_equal(part[0], whole[0][at]) and np.array_equal(part[1], whole[1][at])
     assert not whole[1].all()  # (saturated pixels are marked)
     assert np.array_equal(_longest_signal(Capture(frames), at)[0], part[0])
+
+
+def test_a_digitised_images_dark_region_limits_are_the_cameras_in_its_pixels():
+    """Ward's 108 x 80 digitiser (Ward 1992 §3) averages about 6 x 6 camera pixels: the
+    camera's six-pixel margin is one digitised pixel (plus the box straddling the edge) and
+    the camera's 200-pixel minimum is six (floored at MIN_BINNED_PIXELS)."""
+    from gonio.calibration.glare import (
+        DARK_MARGIN_PX,
+        MIN_BINNED_PIXELS,
+        MIN_DARK_PIXELS,
+        binned_limits,
+    )
+
+    assert binned_limits(640, 480, 640, 480) == (DARK_MARGIN_PX, MIN_DARK_PIXELS)
+    assert binned_limits(640, 480, 108, 80) == (2, MIN_BINNED_PIXELS)
+    assert binned_limits(640, 480, 320, 240) == (4, 50)
+    with pytest.raises(ValueError, match="min_pixels must be a positive integer"):
+        dark_region(None, None, np.ones((2, 2), bool), min_pixels=0)

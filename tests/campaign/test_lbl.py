@@ -315,6 +315,23 @@ def test_ward1992_campaign_digitises_to_108_by_80(tmp_path):
     assert res.summary["instrument"]["binning"] == [108, 80] and len(res.samples) > 50
 
 
+def test_ward1992_glare_is_corrected_in_its_digitised_images():
+    """Issue 35: on a ward1992 instrument (seed 1) the camera's six-pixel margin around the
+    lens body's shadow, applied to 108 x 80 pixels, left fewer than 200 dark pixels, so the
+    veil (+9 % on rho_d) went uncorrected while the budget assumed a correction in any
+    capture had one. Now the dark region is found in every capture and the budget carries
+    the digitised images' measured residual."""
+    from gonio.campaign.knowledge import GLARE_RESIDUAL_DIGITISED
+
+    plan = campaign.Plan(theta_i_deg=(15.0, 45.0), rotations_deg=(0.0,), plots=False,
+                         preset="ward1992", seed=1)  # fmt: skip
+    s = campaign.run(plan).summary
+    term = s["budget"]["terms"]["veiling_glare"]
+    g = s["instrument"]["effects"]["veiling_glare"]
+    assert term["corrected"] and term["note"].startswith("residual")
+    assert 0.5 * g < term["u"] / GLARE_RESIDUAL_DIGITISED < 2.0 * g  # the specified veil
+
+
 def test_lamp_clock_follows_the_real_schedule():
     inner = campaign.lbl._SimulatedLBL(campaign.Plan(theta_i_deg=(0.0, 40.0)).resolved())
     t_std = inner.clock_s("standard", 0.0, 0.0)
