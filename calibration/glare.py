@@ -154,7 +154,9 @@ def dark_region(
 MIN_BINNED_PIXELS = 20
 
 
-def binned_limits(camera_width: int, camera_height: int, width: int, height: int) -> tuple[int, int]:
+def binned_limits(
+    camera_width: int, camera_height: int, width: int, height: int
+) -> tuple[int, int]:
     """:func:`dark_region`'s ``margin`` and ``min_pixels`` for an image of ``width × height``
     pixels digitised from a ``camera_width × camera_height`` camera (each pixel the area mean
     of a box of camera pixels; Ward 1992 §3): the camera's :data:`DARK_MARGIN_PX` in digitised
@@ -178,8 +180,8 @@ def binned_limits(camera_width: int, camera_height: int, width: int, height: int
     if not (bx > 1.0 or by > 1.0):
         return DARK_MARGIN_PX, MIN_DARK_PIXELS
     b = max(bx, by)
-    margin = int(math.ceil(DARK_MARGIN_PX / b)) + 1
-    return margin, max(MIN_BINNED_PIXELS, int(math.ceil(MIN_DARK_PIXELS / (bx * by))))
+    margin = math.ceil(DARK_MARGIN_PX / b) + 1
+    return margin, max(MIN_BINNED_PIXELS, math.ceil(MIN_DARK_PIXELS / (bx * by)))
 
 
 @dataclass(frozen=True)
