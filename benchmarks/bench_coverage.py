@@ -18,7 +18,9 @@ expanded uncertainty U (k = 2) over the determined parameters, the median over p
 U / rms error, the largest |bias| / rms error, crashes (a campaign that raised) and flagged
 campaigns (an undetermined parameter, a resolution warning, or a fit whose chi2/dof says the
 model cannot describe the data). A row is honest with coverage >= 95 % and U/rms <= 3, or
-with its cases flagged.
+with its cases flagged; ``p95`` is the binomial chance of a coverage this low or lower if the
+true coverage were 95 % (below 0.05: the shortfall is not the sample's luck). A parameter
+whose U is as large as its value is counted as bounded, not measured.
 
 The campaigns run as tasks of :func:`gonio.campaign.sweep.run_sweep` (``--executor process``
 with ``--workers``, or ``dask``), each in its own folder under ``--root``; a rerun skips the
@@ -179,15 +181,22 @@ def _cornell(row: dict[str, Any], seed: int) -> dict[str, Any]:
 
 
 def table(results: list[dict[str, Any]]) -> str:
-    """Per row: n, coverage of U over determined parameters, median U/rms, max |bias|/rms
-    (over the parameters), crashes, flagged."""
+    """Per row: n, coverage of U over the measured parameters, its binomial p (the chance of
+    so few inside if the coverage were 95 %), median U/rms, max |bias|/rms (over the
+    parameters), bounded parameters, crashes, flagged.
+
+    A parameter whose U is as large as its value is *bounded*, not measured (the campaign
+    says so in its warnings: :func:`gonio.campaign.determined.budget_warnings`); it counts in
+    ``bound`` and not in the coverage or U/rms."""
+    from scipy.stats import binom
+
     by: dict[str, list[dict[str, Any]]] = defaultdict(list)
     for r in results:
         by[r["row"]].append(r)
     head = (
         f"{'instrument':8s} {'preset':11s} {'plan':13s} {'material':28s} {'model':14s} "
-        f"{'n':>2s} {'cover':>11s} {'U/rms':>6s} {'|bias|/rms':>10s} {'crash':>5s} "
-        f"{'flag':>4s}"
+        f"{'n':>2s} {'cover':>11s} {'p95':>5s} {'U/rms':>6s} {'|bias|/rms':>10s} "
+        f"{'bound':>5s} {'crash':>5s} {'flag':>4s}"
     )
     lines = [head, "-" * len(head)]
 
@@ -210,10 +219,11 @@ def table(results: list[dict[str, Any]]) -> str:
                 if k.startswith("err:"):
                     p = k[4:]
                     per[p].append((v, m.get(f"U:{p}"), m[f"ref:{p}"]))
-        n_in = n_det = 0
+        n_in = n_det = n_bound = 0
         ratios, biases = [], []
         for vals in per.values():
-            det = [(e, u) for e, u, _ in vals if u is not None]
+            n_bound += sum(u is not None and u >= abs(r) for _, u, r in vals)
+            det = [(e, u) for e, u, r in vals if u is not None and u < abs(r)]
             n_det += len(det)
             n_in += sum(abs(e) <= u for e, u in det)
             if len(det) >= 2:
@@ -223,11 +233,12 @@ def table(results: list[dict[str, Any]]) -> str:
                     ratios.append(statistics.mean(u for _, u in det) / rms)
                     biases.append(abs(statistics.mean(errs)) / rms)
         cover = f"{n_in}/{n_det} {100 * n_in / n_det:3.0f}%" if n_det else "-"
+        p95 = f"{binom.cdf(n_in, n_det, 0.95):5.2f}" if n_det else "    -"
         lines.append(
             f"{row['instrument']:8s} {row['preset']:11s} {row.get('plan', '-'):13s} "
-            f"{row['material']:28s} {row['model']:14s} {len(rs):2d} {cover:>11s} "
+            f"{row['material']:28s} {row['model']:14s} {len(rs):2d} {cover:>11s} {p95} "
             f"{statistics.median(ratios) if ratios else float('nan'):6.2f} "
-            f"{max(biases) if biases else float('nan'):10.2f} "
+            f"{max(biases) if biases else float('nan'):10.2f} {n_bound:5d} "
             f"{sum(r['metrics'].get('crash', 0) for r in rs):5d} "
             f"{sum(r['metrics'].get('flagged', 0) for r in rs):4d}"
         )
