@@ -110,13 +110,33 @@ def _truth_params(truth: Any) -> dict[str, float]:
     return out
 
 
+def _lobe_truth(truth: Any, model: Any) -> dict[str, float]:
+    """The true Lafortune lobes under the fitted model's parameter names
+    (``lobes[i].c_x`` ...), each fitted lobe matched to the true lobe of the same rank of
+    exponent ``n`` (a sum of lobes has no order of its own); empty unless both are Lafortune
+    models with as many lobes."""
+    if truth.name != "lafortune" or model.name != "lafortune":
+        return {}
+    t, f = list(truth.params["lobes"]), list(model.params["lobes"])
+    if len(t) != len(f):
+        return {}
+    t_order = sorted(range(len(t)), key=lambda i: float(t[i][3]))
+    f_order = sorted(range(len(f)), key=lambda i: float(f[i][3]))
+    out = {}
+    for ti, fi in zip(t_order, f_order):
+        for j, nm in enumerate(("c_x", "c_y", "c_z", "n")):
+            out[f"lobes[{fi}].{nm}"] = float(t[ti][j])
+    return out
+
+
 def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -> dict:
     """The summary of a campaign: the fit beside the truth, the undetermined parameters
     with their reasons (``undetermined``), the fit's warnings (``warnings``) and how the
     fit ended (``fit_status``); every non-finite number is ``None``."""
     from gonio.campaign.determined import finite, fit_status, undetermined
 
-    truth_p = _truth_params(truth) if plan.model == truth.name else {}
+    all_truth = {**_truth_params(truth), **_lobe_truth(truth, result.model)}
+    truth_p = all_truth if plan.model == truth.name else {}
     fitp = {k: float(v) for k, v in result.params.items()}
     stderr = {k: (float(v) if math.isfinite(v) else None) for k, v in result.stderr.items()}
     rel = {}
@@ -152,7 +172,7 @@ def summarise(plan, info, truth, result, compare, samples, n_pixels, n_loaded) -
             "class": info.get("class"),
             "model": plan.model,
             "truth_model": truth.name,
-            "truth": _truth_params(truth),
+            "truth": all_truth,
             "fit": fitp,
             "stderr": stderr,
             "relative_error": rel,
