@@ -124,7 +124,7 @@ def validate(r: d.DesignResult, n: int, folder: Path) -> None:
 
 
 def bench_lbl(
-    validate: int = 0, factor: float = 1.0, n_instruments: int = 3, with_default: bool = False
+    validate: int = 0, factor: float = 1.0, n_instruments: int = 6, with_default: bool = False
 ) -> None:
     from gonio import campaign
     from gonio.campaign import design_lbl
@@ -222,7 +222,7 @@ def main() -> None:
     ap.add_argument("--validate", type=int, default=0)
     ap.add_argument("--lbl", action="store_true")
     ap.add_argument("--factor", type=float, default=1.0, help="lbl: targets x default U")
-    ap.add_argument("--instruments", type=int, default=3, help="lbl: design instruments")
+    ap.add_argument("--instruments", type=int, default=6, help="lbl: design instruments")
     ap.add_argument(
         "--with-default",
         action="store_true",

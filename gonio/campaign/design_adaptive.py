@@ -205,7 +205,7 @@ def adaptive_lbl(
     instrument_seed: int | None = None,
     preset: str = "modern",
     time_limit_h: float | None = None,
-    n_instruments: int = 3,
+    n_instruments: int = 6,
     candidate_angles_deg: tuple[float, ...] | None = None,
 ) -> dict[str, Any]:
     """The LBL adaptive campaign: a pilot (:data:`LBL_PILOT_ANGLES`, ``out/pilot``), the
@@ -214,7 +214,7 @@ def adaptive_lbl(
     parameters ± their U, :func:`_lbl_prior`), then the designed plan (``out/main``, its
     plan file ``out/designed_plan.json``); the summary (also ``out/adaptive.json``) as
     :func:`adaptive_cornell`'s. The final U is the main campaign's alone.
-    ``n_instruments`` (1-3) design instruments, ``candidate_angles_deg`` the design's
+    ``n_instruments`` (1-10) design instruments (the k-th at the k-th prior modulo 3), ``candidate_angles_deg`` the design's
     candidate incidence angles (default the default plan's)."""
     from gonio import campaign
     from gonio.campaign import design, design_lbl
@@ -223,8 +223,8 @@ def adaptive_lbl(
     tg = design.parse_targets(None) if targets is None else targets
     if time_limit_h is not None and not (math.isfinite(time_limit_h) and time_limit_h > 0):
         raise design.DesignError(f"time limit {time_limit_h!r} h: expected a positive number")
-    if n_instruments not in (1, 2, 3):
-        raise design.DesignError(f"n_instruments {n_instruments!r}: expected 1, 2 or 3")
+    if not (isinstance(n_instruments, int) and 1 <= n_instruments <= 10):
+        raise design.DesignError(f"n_instruments {n_instruments!r}: expected 1 to 10")
     design_lbl._precheck(material, tg, preset, time_limit_h)  # before the pilot runs
     outp = Path(out)
     kw = dict(material=material, seed=seed, instrument_seed=instrument_seed, preset=preset,
@@ -244,7 +244,8 @@ def adaptive_lbl(
             f"time limit {time_limit_h} h: the pilot alone takes {h_pilot:.3g} h"
         )
     t1 = time.perf_counter()
-    priors = _lbl_prior(pilot)[:n_instruments]
+    three = _lbl_prior(pilot)
+    priors = [three[k % 3] for k in range(n_instruments)]
     cands = [design_lbl.lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k,
                                        truth=m, angles_deg=candidate_angles_deg)
              for k, m in enumerate(priors)]  # fmt: skip

@@ -13,29 +13,68 @@ the preset that is not the one to be measured: ``design_instrument_seed``) gives
 samples of each capture, the fit's Jacobian over them and every budget term's perturbation
 ``δy`` of them. A plan is a subset of those captures; its predicted budget is
 
-* statistical: ``(Σ_g F_g)⁻¹`` scaled by the candidate fit's ``χ²/dof`` (as the campaign's
-  fit scales its covariance), ``F_g = J_gᵀ W_g J_g`` of capture group ``g`` = (θi, rotation);
+* statistical: ``(Σ_g F_g)⁻¹ · max(1, χ²/dof)``, ``F_g = J_gᵀ W_g J_g`` of capture group
+  ``g`` = (θi, rotation), the plan's own ``χ²/dof``: its captures' residuals at the candidate
+  fit less what refitting them alone removes (first order), over ``n − P`` (the instrument's
+  misfit differs from capture to capture: a 2-angle plan's factor 5.83 against the candidate
+  campaign's 5.04);
 * each systematic term ``u · C Σ_g J_gᵀ W_g δy_g`` (one realisation shared by the plan's
   captures);
 * each random term ``Σ_c (u · C Σ_g J_gᵀ W_g δy_{c,g})²`` over its independent realisations
   ``c`` (one capture's exposure, one incidence angle's standard);
+* the terms whose ``u`` or pattern is the plan's own (:func:`_plan_vectors`): the exposure
+  terms' ``u`` from the plan's brackets (the budget takes the bracket with the most frames),
+  the f-stop table's ``u`` over the stops the plan uses, and the lamp's warm-up and drift from
+  the plan's own schedule (the time between each sample capture and its standard's), with
+  the standard re-measured or not;
 
 combined in quadrature and expanded at k = 2, exactly as :func:`gonio.campaign.budget.build_budget`
-combines them. The search: for every non-empty set of the candidate rotations, greedy forward
-selection of incidence angles (the largest decrease of the logarithmic hinge of
+combines them. Measured: a plan of some candidate captures (2 and 9 angles x 2 rotations, with
+and without a re-standard cadence) run as its own campaign on the design instrument reports
+the predicted U to 0.1 % (``tests/campaign/test_design.py`` checks 1 %); before the plan's own
+terms, the exposure terms were predicted 23-50 % low and the lamp's 70 % high.
+
+The search: for every non-empty set of the candidate rotations and every cadence, greedy
+forward selection of incidence angles (the largest decrease of the logarithmic hinge of
 :mod:`gonio.campaign.design` per second of instrument time), then a backward pass that drops
-angles while every target stays met; the quickest plan that meets every target wins.
+angles while every target stays met; the quickest plan that meets every target wins. A target
+no plan meets on its own (searched alone) is reported unreachable, with the lowest U the
+search found for it (its floor) and that plan's dominant term, and not chased.
 
-What the decomposition leaves out: terms whose pattern depends on the whole plan (the lamp's
-warm-up and drift follow the capture times of the candidate campaign's schedule, not the
-designed one's). The prior is the material preset; a prior range would need one candidate
-campaign per point and is not done for this instrument.
+What the design cannot know is the instrument: each physical instrument of the preset has
+its own calibration (its f-stop table, its exposure scatter) and its own misfit, and the same
+plan's U varies between instruments (rolled brass, 20 instruments: relative standard deviation
+16 % for ρd on a 2-angle plan, 12 % on a 9-angle one; skewed, the statistical term's χ²/dof
+heavy-tailed). The candidate campaign therefore runs on ``n_instruments`` instruments, the
+central prediction is their mean and the targets are met by the U at 95 % over instruments
+(the one-sided Student prediction bound from those instruments). Three instruments estimate
+that spread poorly, and the search, choosing the plan whose bound is lowest among many,
+favours plans whose few instruments happen to agree; the default is six (each a candidate
+campaign of about 4 s on an idle 2-core machine).
 
-Measured (rolled brass, modern preset, targets the default plan's predicted U, three design
-instruments): 9 angles x 2 rotations, 0.036 h against the default's 21 x 3 in 0.078 h; run
-with the default plan on instruments 0-19: truth within the achieved U 78/80, achieved /
-predicted U 0.85-1.27, the designed plan's U at or below the default plan's on the same
-instrument for ρs, α_x, α_y every time (ratios 0.74-0.93) and for ρd 13/20 times (0.91-1.08).
+Cadences, each chosen from the budget's terms that depend on it:
+
+* the re-standard cadence (``restandard_every``): each re-measured standard is an anchor of
+  the drift correction, so the lamp's terms become what the interpolation between anchors
+  leaves, plus each anchor's own exposure scatter (``√2 u``), against two manual swaps of
+  the real instrument per anchor (:attr:`gonio.simulator.lbl_timing.LBLTiming.swap_s`). The
+  search tries :data:`CADENCES` (a denser one only while the targets are missed); the plan file
+  records the hours and U at each cadence for the designed angles. Rolled brass on the modern
+  instrument: none (the lamp's terms are 2-8 % of ρd's U and an anchor costs 40 s); a lamp
+  specified 30 times as unstable gets one (tested).
+* exposure brackets: each capture's bracket is the instrument's automatic one
+  (:mod:`gonio.simulator.lbl_exposure`: the f-stops the scene needs), and the budget terms
+  that depend on it (the exposure scatter through the bracket's frames, the f-stop table
+  through its stops) are predicted for those brackets. A fixed ``exposures_s`` would need a
+  candidate campaign per bracket; the design does not choose one, and the plan file says
+  ``"exposures_s": "auto"``.
+
+The prior is the material preset, or a model (``truth``: the adaptive campaign's pilot fit,
+one per design instrument); a prior range as on Cornell would need one candidate campaign per
+point.
+
+Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_design.py --lbl
+--validate 20``; shared machine): MEASURED_PLACEHOLDER
 
 References
 ----------
@@ -425,7 +464,7 @@ def design_lbl(
     time_limit_h: float | None = None,
     default_factor: float | None = None,
     margin: float = 0.0,
-    n_instruments: int = 3,
+    n_instruments: int = 6,
     candidates: _LBLCandidates | list[_LBLCandidates] | None = None,
     truth: Any = None,
 ) -> LBLDesign:

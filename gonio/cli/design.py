@@ -41,9 +41,9 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--design-instruments",
         type=int,
-        default=3,
+        default=6,
         metavar="K",
-        help="lbl: instruments of the preset the candidate campaign runs on (1-10, default 3; "
+        help="lbl: instruments of the preset the candidate campaign runs on (1-10, default 6; "
         "each about 4 s): the design meets each target at the U at 95 %% over them",
     )
     parser.add_argument(
@@ -118,7 +118,7 @@ def run(args) -> int:
 
     if args.instrument == "lbl":
         return _run_lbl(args)
-    if args.default_u is not None or args.design_instruments != 3:
+    if args.default_u is not None or args.design_instruments != 6:
         raise ValueError("--default-u, --design-instruments: options of --instrument lbl only")
     if args.preset not in (None, "cornell2005", "ideal"):
         raise ValueError(f"--preset {args.preset}: not a cornell preset (cornell2005, ideal)")

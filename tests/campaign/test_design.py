@@ -314,6 +314,6 @@ def test_lbl_adaptive_refuses_a_bad_target_before_the_pilot(tmp_path):
 
     with pytest.raises(d.DesignError, match="'tau' is not a parameter of ward"):
         adaptive_lbl("rolled_brass", d.parse_targets(["tau=1%"]), tmp_path / "a")
-    with pytest.raises(d.DesignError, match="n_instruments 4"):
-        adaptive_lbl("rolled_brass", None, tmp_path / "a", n_instruments=4)
+    with pytest.raises(d.DesignError, match="n_instruments 11"):
+        adaptive_lbl("rolled_brass", None, tmp_path / "a", n_instruments=11)
     assert not (tmp_path / "a").exists()
