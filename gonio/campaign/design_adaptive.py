@@ -214,8 +214,9 @@ def adaptive_lbl(
     parameters ± their U, :func:`_lbl_prior`), then the designed plan (``out/main``, its
     plan file ``out/designed_plan.json``); the summary (also ``out/adaptive.json``) as
     :func:`adaptive_cornell`'s. The final U is the main campaign's alone.
-    ``n_instruments`` (1-10) design instruments (the k-th at the k-th prior modulo 3), ``candidate_angles_deg`` the design's
-    candidate incidence angles (default the default plan's)."""
+    ``n_instruments`` (1-10) design instruments (the k-th at the k-th prior modulo 3),
+    ``candidate_angles_deg`` the design's candidate incidence angles (default the default
+    plan's)."""
     from gonio import campaign
     from gonio.campaign import design, design_lbl
     from gonio.campaign.cornell import _write_json
