@@ -556,6 +556,7 @@ def design_lbl(
         if unreachable:
             best = _search(cs, t2, ridge, limit)
     _, _, every, amask, rmask = best
+    every = min(int(every), int(amask.sum()))  # (the same anchors; a plan refuses a larger one)
     u, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
     pred = dict(zip(c.names, map(float, u)))
     pred95 = dict(zip(c.names, map(float, u95)))
