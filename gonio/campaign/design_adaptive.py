@@ -88,7 +88,7 @@ def adaptive_cornell(
     ``out/adaptive.json``). ``n_grid``, ``theta_i_deg``: the design's candidates
     (:func:`gonio.campaign.design.cornell_candidates`)."""
     from gonio.campaign import design
-    from gonio.campaign.cornell import _write_json, run_cornell_campaign
+    from gonio.campaign.cornell import run_cornell_campaign
 
     tg = design.parse_targets(None) if targets is None else targets
     truth, names, *_ = design._fitted(material, None)  # checks before the pilot runs
@@ -128,15 +128,26 @@ def adaptive_cornell(
             "met": bool(b[p]["U"] <= t), "truth_within_U": b[p].get("truth_within_U")}
         for p, t in res.targets.items() if p in b
     }  # fmt: skip
+    return _summary(outp, material, "cornell", stages, final, res.unreachable)
+
+
+def _summary(
+    outp: Path, material: str, instrument: str, stages: dict, final: dict, unreachable: dict,
+    **extra: Any,
+) -> dict[str, Any]:  # fmt: skip
+    """The adaptive campaign's summary, written to ``outp/adaptive.json``."""
+    from gonio.campaign.cornell import _write_json
+
     summary = {
         "material": material,
-        "instrument": "cornell",
+        "instrument": instrument,
         "stages": stages,
         "real_instrument_h": stages["pilot"]["real_instrument_h"]
         + stages["main"]["real_instrument_h"],
+        **extra,
         "n_targets": len(final),
         "n_met": sum(f["met"] for f in final.values()),
-        "unreachable": res.unreachable,
+        "unreachable": unreachable,
         "final": final,
     }
     _write_json(outp / "adaptive.json", summary)
@@ -219,7 +230,6 @@ def adaptive_lbl(
     plan's)."""
     from gonio import campaign
     from gonio.campaign import design, design_lbl
-    from gonio.campaign.cornell import _write_json
 
     tg = design.parse_targets(None) if targets is None else targets
     if time_limit_h is not None and not (math.isfinite(time_limit_h) and time_limit_h > 0):
@@ -277,19 +287,8 @@ def adaptive_lbl(
             "truth_within_U": bool(abs(fit[p] - truth[p]) <= U[p]) if p in truth else None}
         for p, t in res.targets.items() if p in U
     }  # fmt: skip
-    summary = {
-        "material": material,
-        "instrument": "lbl",
-        "stages": stages,
-        "real_instrument_h": h_pilot + res.hours,
-        "default_plan_h": res.default["hours"],
-        "n_targets": len(final),
-        "n_met": sum(f["met"] for f in final.values()),
-        "unreachable": res.unreachable,
-        "final": final,
-    }
-    _write_json(outp / "adaptive.json", summary)
-    return summary
+    return _summary(outp, material, "lbl", stages, final, res.unreachable,
+                    default_plan_h=res.default["hours"])  # fmt: skip
 
 
 def adaptive_lbl_text(s: dict[str, Any]) -> str:
