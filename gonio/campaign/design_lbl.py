@@ -74,7 +74,23 @@ one per design instrument); a prior range as on Cornell would need one candidate
 point.
 
 Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_design.py --lbl
---validate 20``; shared machine): MEASURED_PLACEHOLDER
+--validate 20 --factor F --instruments K``, campaign seed = instrument seed; shared machine):
+
+* targets 1.25 x the default plan's predicted U, six design instruments: 6 angles x 2
+  rotations, 0.030 h (the default's 21 x 3: 0.078 h); ρd reported unreachable (its floor at
+  95 %, 0.00142, above the target 0.00122). Truth within the achieved U 78/80; achieved /
+  predicted U median 0.98 (0.81-1.30), 79/80 within 25 %; the reachable targets met 58/60
+  (α_x 1.004 and 1.036 times its target on two instruments); ρd's achieved U at or below its
+  target 20/20 (the bound was conservative for it).
+* the same with three design instruments: 2 x 2 angles and rotations, 0.018 h; truth within
+  U 76/80, achieved / predicted U median 1.09 (0.85-1.51), 68/80 within 25 %, targets met
+  66/80 (ρd 1.05-1.29 and α_x 1.06-1.19 times its target on 14 instruments): three
+  instruments are too few to bound the spread.
+* targets the default plan's predicted U (``--factor 1``), six design instruments: ρd and
+  ρs unreachable (the default plan's own U at 95 % over instruments is 1.45 and 1.22 times
+  its mean), so a plan of one angle at one rotation (0.012 h) for α_x, α_y: reachable targets
+  met 38/40, truth within U 78/80, achieved / predicted U median 0.97 (0.72-1.39); ρd and ρs
+  1.24-2.28 times their targets (not chased).
 
 References
 ----------
