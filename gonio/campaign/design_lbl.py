@@ -84,12 +84,12 @@ Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_desi
   target 20/20 (the bound was conservative for it).
 * the same with three design instruments: 2 x 2 angles and rotations, 0.018 h; truth within
   U 76/80, achieved / predicted U median 1.09 (0.85-1.51), 68/80 within 25 %, targets met
-  66/80 (ρd 1.05-1.29 and α_x 1.06-1.19 times its target on 14 instruments): three
+  66/80 (ρd 1.01-1.29 times its target on 8 instruments, α_x 1.00-1.19 on 6): three
   instruments are too few to bound the spread.
 * targets the default plan's predicted U (``--factor 1``), six design instruments: ρd and
   ρs unreachable (the default plan's own U at 95 % over instruments is 1.45 and 1.22 times
   its mean), so a plan of one angle at one rotation (0.012 h) for α_x, α_y: reachable targets
-  met 38/40, truth within U 78/80, achieved / predicted U median 0.97 (0.72-1.39); ρd and ρs
+  met 38/40 (α_y 1.01 and 1.13 times its target), truth within U 78/80, achieved / predicted U median 0.97 (0.72-1.39); ρd and ρs
   1.24-2.28 times their targets (not chased).
 
 References
