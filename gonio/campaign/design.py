@@ -550,6 +550,9 @@ class DesignResult:
                 f"  {label:<14}{f(tgt):>12}{f(d['U']):>12}{f(dv):>12}{f(d['floor']):>12}"
                 f"  {d['dominant']}"
             )
+        if self.instrument == "cornell":
+            lines.append("  reference cadence: the campaign's (not designed: its lamp term is "
+                         "measured from the references; see gonio.campaign.design)")  # fmt: skip
         n_met = sum(1 for p, t in self.targets.items() if self.predicted[p]["U"] <= t)
         lines.append(f"  targets met (predicted, worst case over the prior): {n_met}/"
                      f"{len(self.targets)}; design {self.design_s:.1f} s")  # fmt: skip
@@ -896,7 +899,8 @@ def write_cornell_plan(path: Any, result: DesignResult) -> None:
     to, po = to_spherical(result.plan.wo)
     deg = np.degrees(np.c_[ti, pi, to, po])
     head = {"material": result.material, "instrument": result.instrument,
-            "hours": round(result.hours, 4), "n_geometries": len(result.plan)}  # fmt: skip
+            "hours": round(result.hours, 4), "n_geometries": len(result.plan),
+            "reference_every": "the campaign's (not designed)"}  # fmt: skip
     lines = [f"# gonio design: {json.dumps(head)}", "theta_i,phi_i,theta_o,phi_o"]
     lines += [",".join(f"{v:.9f}" for v in row) for row in deg]
     atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())
