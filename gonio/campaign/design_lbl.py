@@ -89,8 +89,8 @@ Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_desi
 * targets the default plan's predicted U (``--factor 1``), six design instruments: ρd and
   ρs unreachable (the default plan's own U at 95 % over instruments is 1.45 and 1.22 times
   its mean), so a plan of one angle at one rotation (0.012 h) for α_x, α_y: reachable targets
-  met 38/40 (α_y 1.01 and 1.13 times its target), truth within U 78/80, achieved / predicted U median 0.97 (0.72-1.39); ρd and ρs
-  1.24-2.28 times their targets (not chased).
+  met 38/40 (α_y 1.01 and 1.13 times its target), truth within U 78/80, achieved / predicted
+  U median 0.97 (0.72-1.39); ρd and ρs 1.24-2.28 times their targets (not chased).
 
 References
 ----------
@@ -436,7 +436,7 @@ class LBLDesign:
     n_instruments: int = 1
 
     def table(self) -> str:
-        re = (f"standard re-measured after every {self.restandard_every}. angle"
+        re = (f"standard re-measured every {self.restandard_every} angle(s) of each rotation"
               if self.restandard_every else "standard not re-measured")  # fmt: skip
         lines = [
             f"{self.material} (lbl): designed {len(self.theta_i_deg)} incidence angles x "
