@@ -35,6 +35,17 @@ band's coefficients and the shared shape parameters), until every reachable targ
 the time limit is spent; then a backward pass drops geometries whose removal keeps every
 target met, the slowest first.
 
+The reference cadence is not chosen by the design, and the plan file does not carry one
+(the campaign's default applies: the reference again after every 40 geometries with a
+realistic preset). The budget's term that depends on it is the lamp's
+(``gonio.campaign.cornell_budget._lamp_u``): with three references or more, the leave-one-out
+residual of their linear interpolation *measured* from the campaign's own references (a Type
+A evaluation that no prediction made before the measurement supplies); with fewer, the data
+sheet's warm-up and drift over the plan's hours, which the prediction already has from the
+plan's time. And the run-time model (:func:`gonio.simulator.cornell_plans.estimate_run_time`)
+gives a reference measurement no time, so a denser cadence costs nothing there: a cadence
+chosen from those two would be invented, not designed.
+
 Measured (garnet red paint, cornell2005, every parameter at 5 %, the default 13 x 13 grid:
 1186 candidates): a 5-geometry plan of 0.028 h (the default plan: 0.63 h, k_fs at ~25 %;
 the hemispherical plan: 11.4 h) run on instruments 0-19: the truth within the achieved U for
@@ -539,6 +550,9 @@ class DesignResult:
                 f"  {label:<14}{f(tgt):>12}{f(d['U']):>12}{f(dv):>12}{f(d['floor']):>12}"
                 f"  {d['dominant']}"
             )
+        if self.instrument == "cornell":
+            lines.append("  reference cadence: the campaign's (not designed: its lamp term is "
+                         "measured from the references; see gonio.campaign.design)")  # fmt: skip
         n_met = sum(1 for p, t in self.targets.items() if self.predicted[p]["U"] <= t)
         lines.append(f"  targets met (predicted, worst case over the prior): {n_met}/"
                      f"{len(self.targets)}; design {self.design_s:.1f} s")  # fmt: skip
@@ -885,7 +899,8 @@ def write_cornell_plan(path: Any, result: DesignResult) -> None:
     to, po = to_spherical(result.plan.wo)
     deg = np.degrees(np.c_[ti, pi, to, po])
     head = {"material": result.material, "instrument": result.instrument,
-            "hours": round(result.hours, 4), "n_geometries": len(result.plan)}  # fmt: skip
+            "hours": round(result.hours, 4), "n_geometries": len(result.plan),
+            "reference_every": "the campaign's (not designed)"}  # fmt: skip
     lines = [f"# gonio design: {json.dumps(head)}", "theta_i,phi_i,theta_o,phi_o"]
     lines += [",".join(f"{v:.9f}" for v in row) for row in deg]
     atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())

@@ -13,29 +13,84 @@ the preset that is not the one to be measured: ``design_instrument_seed``) gives
 samples of each capture, the fit's Jacobian over them and every budget term's perturbation
 ``δy`` of them. A plan is a subset of those captures; its predicted budget is
 
-* statistical: ``(Σ_g F_g)⁻¹`` scaled by the candidate fit's ``χ²/dof`` (as the campaign's
-  fit scales its covariance), ``F_g = J_gᵀ W_g J_g`` of capture group ``g`` = (θi, rotation);
+* statistical: ``(Σ_g F_g)⁻¹ · max(1, χ²/dof)``, ``F_g = J_gᵀ W_g J_g`` of capture group
+  ``g`` = (θi, rotation), the plan's own ``χ²/dof``: its captures' residuals at the candidate
+  fit less what refitting them alone removes (first order), over ``n − P`` (the instrument's
+  misfit differs from capture to capture: a 2-angle plan's factor 5.83 against the candidate
+  campaign's 5.04);
 * each systematic term ``u · C Σ_g J_gᵀ W_g δy_g`` (one realisation shared by the plan's
   captures);
 * each random term ``Σ_c (u · C Σ_g J_gᵀ W_g δy_{c,g})²`` over its independent realisations
   ``c`` (one capture's exposure, one incidence angle's standard);
+* the terms whose ``u`` or pattern is the plan's own (:func:`_plan_vectors`): the exposure
+  terms' ``u`` from the plan's brackets (the budget takes the bracket with the most frames),
+  the f-stop table's ``u`` over the stops the plan uses, and the lamp's warm-up and drift from
+  the plan's own schedule (the time between each sample capture and its standard's), with
+  the standard re-measured or not;
 
 combined in quadrature and expanded at k = 2, exactly as :func:`gonio.campaign.budget.build_budget`
-combines them. The search: for every non-empty set of the candidate rotations, greedy forward
-selection of incidence angles (the largest decrease of the logarithmic hinge of
+combines them. Measured: a plan of some candidate captures (2 and 9 angles x 2 rotations, with
+and without a re-standard cadence) run as its own campaign on the design instrument reports
+the predicted U to 0.1 % (``tests/campaign/test_design.py`` checks 1 %); before the plan's own
+terms, the exposure terms were predicted 23-50 % low and the lamp's 70 % high.
+
+The search: for every non-empty set of the candidate rotations and every cadence, greedy
+forward selection of incidence angles (the largest decrease of the logarithmic hinge of
 :mod:`gonio.campaign.design` per second of instrument time), then a backward pass that drops
-angles while every target stays met; the quickest plan that meets every target wins.
+angles while every target stays met; the quickest plan that meets every target wins. A target
+no plan meets on its own (searched alone) is reported unreachable, with the lowest U the
+search found for it (its floor) and that plan's dominant term, and not chased.
 
-What the decomposition leaves out: terms whose pattern depends on the whole plan (the lamp's
-warm-up and drift follow the capture times of the candidate campaign's schedule, not the
-designed one's). The prior is the material preset; a prior range would need one candidate
-campaign per point and is not done for this instrument.
+What the design cannot know is the instrument: each physical instrument of the preset has
+its own calibration (its f-stop table, its exposure scatter) and its own misfit, and the same
+plan's U varies between instruments (rolled brass, 20 instruments: relative standard deviation
+16 % for ρd on a 2-angle plan, 12 % on a 9-angle one; skewed, the statistical term's χ²/dof
+heavy-tailed). The candidate campaign therefore runs on ``n_instruments`` instruments, the
+central prediction is their mean and the targets are met by the U at 95 % over instruments
+(the one-sided Student prediction bound from those instruments). Three instruments estimate
+that spread poorly, and the search, choosing the plan whose bound is lowest among many,
+favours plans whose few instruments happen to agree; the default is six (each a candidate
+campaign of about 4 s on an idle 2-core machine).
 
-Measured (rolled brass, modern preset, targets the default plan's predicted U, three design
-instruments): 9 angles x 2 rotations, 0.036 h against the default's 21 x 3 in 0.078 h; run
-with the default plan on instruments 0-19: truth within the achieved U 78/80, achieved /
-predicted U 0.85-1.27, the designed plan's U at or below the default plan's on the same
-instrument for ρs, α_x, α_y every time (ratios 0.74-0.93) and for ρd 13/20 times (0.91-1.08).
+Cadences, each chosen from the budget's terms that depend on it:
+
+* the re-standard cadence (``restandard_every``): each re-measured standard is an anchor of
+  the drift correction, so the lamp's terms become what the interpolation between anchors
+  leaves, plus each anchor's own exposure scatter (``√2 u``), against two manual swaps of
+  the real instrument per anchor (:attr:`gonio.simulator.lbl_timing.LBLTiming.swap_s`). The
+  search tries :data:`CADENCES` (a denser one only while the targets are missed); the plan file
+  records the hours and U at each cadence for the designed angles. Rolled brass on the modern
+  instrument: none (the lamp's terms are 2-8 % of ρd's U and an anchor costs 40 s); a lamp
+  specified 30 times as unstable gets one (tested).
+* exposure brackets: each capture's bracket is the instrument's automatic one
+  (:mod:`gonio.simulator.lbl_exposure`: the f-stops the scene needs), and the budget terms
+  that depend on it (the exposure scatter through the bracket's frames, the f-stop table
+  through its stops) are predicted for those brackets. A fixed ``exposures_s`` would need a
+  candidate campaign per bracket; the design does not choose one, and the plan file says
+  ``"exposures_s": "auto"``.
+
+The prior is the material preset, or a model (``truth``: the adaptive campaign's pilot fit,
+one per design instrument); a prior range as on Cornell would need one candidate campaign per
+point.
+
+Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_design.py --lbl
+--validate 20 --factor F --instruments K``, campaign seed = instrument seed; shared machine):
+
+* targets 1.25 x the default plan's predicted U, six design instruments: 6 angles x 2
+  rotations, 0.030 h (the default's 21 x 3: 0.078 h); ρd reported unreachable (its floor at
+  95 %, 0.00142, above the target 0.00122). Truth within the achieved U 78/80; achieved /
+  predicted U median 0.98 (0.81-1.30), 79/80 within 25 %; the reachable targets met 58/60
+  (α_x 1.004 and 1.036 times its target on two instruments); ρd's achieved U at or below its
+  target 20/20 (the bound was conservative for it).
+* the same with three design instruments: 2 x 2 angles and rotations, 0.018 h; truth within
+  U 76/80, achieved / predicted U median 1.09 (0.85-1.51), 68/80 within 25 %, targets met
+  66/80 (ρd 1.01-1.29 times its target on 8 instruments, α_x 1.00-1.19 on 6): three
+  instruments are too few to bound the spread.
+* targets the default plan's predicted U (``--factor 1``), six design instruments: ρd and
+  ρs unreachable (the default plan's own U at 95 % over instruments is 1.45 and 1.22 times
+  its mean), so a plan of one angle at one rotation (0.012 h) for α_x, α_y: reachable targets
+  met 38/40 (α_y 1.01 and 1.13 times its target), truth within U 78/80, achieved / predicted
+  U median 0.97 (0.72-1.39); ρd and ρs 1.24-2.28 times their targets (not chased).
 
 References
 ----------
@@ -58,7 +113,14 @@ from numpy.typing import NDArray
 
 from gonio.campaign.design import DesignError, _objective
 
-__all__ = ["LBLDesign", "design_lbl", "lbl_candidates", "write_lbl_plan"]
+__all__ = ["LBLDesign", "design_lbl", "lbl_candidates", "plan_hours", "write_lbl_plan"]
+
+
+#: the budget's terms a plan changes through more than its captures' sum: the lamp's (its
+#: schedule: the time between each capture and its standard's, the re-measured standards)
+#: and the exposure's (its ``u``: the frames of the plan's brackets, the stops it uses)
+_PLAN_TERMS = ("lamp_warmup", "lamp_drift", "exposure_table")
+_LAMP_ANCHOR = "lamp_anchor["
 
 
 @dataclasses.dataclass
@@ -67,13 +129,23 @@ class _LBLCandidates:
     rotations: NDArray  # candidate rotations (deg)
     names: list[str]
     F: NDArray  # (A, R, P, P)
-    B: NDArray  # (A, R, P, E) systematic, u included
+    B: NDArray  # (A, R, P, E) systematic, u included (not the plan's terms, _PLAN_TERMS)
     rand: list[tuple[NDArray, NDArray, NDArray]]  # per random term: (c, (a, r), P-vectors)
+    rand_exposure: list[bool]  # which random terms are the exposure's (u: the plan's frames)
+    S: NDArray  # (A, R, P) each capture's Jᵀ W y: the fit's response to a scale of its values
+    tab2: NDArray  # (A, R) each capture's f-stop table variance (NaN: none; knowledge._table_u)
+    ucap: NDArray  # (A, R) the exposure terms' u were it the plan's only capture (its frames)
+    u_capture: float  # the exposure terms' u of the candidate campaign
+    u_lamp: dict[str, float]  # lamp_warmup, lamp_drift: the specification's u
+    cal: Any  # the laboratory's calibration (its f-stop table: the exposure terms' u)
     cov_scale: float
+    chi2: NDArray  # (A, R) each capture's Σ r² at the candidate fit (r weighted residuals)
+    jr: NDArray  # (A, R, P) each capture's Jᵀ W r
+    n_rows: NDArray  # (A, R) each capture's samples
     params: dict[str, float]
     preset: str
     material: str
-    term_names: list[str]
+    term_names: list[str]  # B's columns, then the random terms
     expanded: dict[str, float] = dataclasses.field(default_factory=dict)  # the campaign's U
 
 
@@ -85,8 +157,10 @@ def lbl_candidates(
     rotations_deg: tuple[float, ...] | None = None,
     design_instrument_seed: int = 1000,
     seed: int = 1000,
+    truth: Any = None,
 ) -> _LBLCandidates:
-    """Run the candidate campaign and decompose its budget by capture (module docstring)."""
+    """Run the candidate campaign and decompose its budget by capture (module docstring).
+    ``truth``: the prior's model (default the material preset's), e.g. a pilot's fit."""
     from gonio import campaign
     from gonio.campaign.budget import Sensitivity
     from gonio.fit import predict
@@ -98,7 +172,7 @@ def lbl_candidates(
     )  # fmt: skip
     # in memory (no folder): no raw frames, samples.csv or calibration files written, the
     # same samples and budget (compared: the budget's U and every perturbation identical)
-    res = campaign.run(plan, None, quiet=True, workers=1)
+    res = campaign.run(plan, None, quiet=True, workers=1, truth=truth)
     # the budget's inputs as the campaign built it (knowledge.CampaignBudget)
     r, s, perts = res.fit, res.budget.samples, list(res.budget.perturbations)
     if r.residual != "absolute":
@@ -120,13 +194,17 @@ def lbl_candidates(
     for g in range(ng):
         rows = gid == g
         F[g] = jr[rows].T @ jr[rows]
-    sysp = [p for p in perts if p.kind == "systematic"]
+
+    def per_capture(dy: NDArray) -> NDArray:  # (ng, P): Σ over each capture's rows of Jᵀ W dy
+        v = jr * (w * np.nan_to_num(dy))[:, None]
+        return np.stack([np.bincount(gid, weights=v[:, j], minlength=ng) for j in range(P)], 1)
+
+    sysp = [p for p in perts if p.kind == "systematic" and p.name not in _PLAN_TERMS
+            and not p.name.startswith(_LAMP_ANCHOR)]  # fmt: skip
     B = np.zeros((ng, P, len(sysp)))
     for e, p in enumerate(sysp):
-        v = jr * (w * p.u * np.nan_to_num(p.dy))[:, None]  # (n, P)
-        for j in range(P):
-            B[:, j, e] = np.bincount(gid, weights=v[:, j], minlength=ng)
-    rand = []
+        B[:, :, e] = per_capture(p.u * p.dy)
+    rand, rand_exp = [], []
     for p in perts:
         if p.kind != "random":
             continue
@@ -135,81 +213,263 @@ def lbl_candidates(
         uk, inv = np.unique(key, return_inverse=True)
         vec = np.stack([np.bincount(inv, weights=v[:, j]) for j in range(P)], axis=1)
         rand.append((uk // ng, uk % ng, vec))
+        rand_exp.append(p.name.startswith("exposure"))
+    # each capture's record: the infos run in the samples' order, n_samples rows each
+    infos = res.budget.infos
+    cap: list[list[dict]] = [[{} for _ in rots] for _ in angles]
+    row = 0
+    for info in infos:
+        g = int(gid[row]) if row < len(gid) else 0
+        cap[g // len(rots)][g % len(rots)] = dict(info)
+        row += int(info.get("n_samples", 0))
+    u_exp = [p.u for p in perts if p.kind == "random" and p.name.startswith("exposure")]
+    res_w = (predict(r.model, s) - s.value) * w  # the candidate fit's weighted residuals
+    shape = (len(angles), len(rots))
+    chi2 = np.bincount(gid, weights=res_w**2, minlength=ng).reshape(shape)
+    n_rows = np.bincount(gid, minlength=ng).reshape(shape)
+    u_lamp = {p.name: float(p.u) for p in perts if p.name in ("lamp_warmup", "lamp_drift")}
+    tab2 = np.full((len(angles), len(rots)), np.nan)
+    ucap = np.full((len(angles), len(rots)), float(u_exp[0]) if u_exp else 0.0)
+    cal = res.budget.cal
+    if cal is not None:
+        from gonio.campaign.knowledge import _capture_u, _table_u, check_corrections
+
+        corr = set(check_corrections(plan.corrections))
+        for a, r_ in itertools.product(range(len(angles)), range(len(rots))):
+            info = cap[a][r_]
+            if cal.fstops is not None and info.get("stops") and info.get("stops_standard"):
+                tab2[a, r_] = _table_u(cal.fstops, [info]) ** 2
+            if u_exp:
+                ucap[a, r_] = _capture_u(cal, cal.specification, corr, [info])
     return _LBLCandidates(
         angles, rots, names, F.reshape(len(angles), len(rots), P, P),
-        B.reshape(len(angles), len(rots), P, -1), rand, float(r.cov_scale),
+        B.reshape(len(angles), len(rots), P, -1), rand, rand_exp,
+        per_capture(s.value).reshape(len(angles), len(rots), P), tab2, ucap,
+        float(u_exp[0]) if u_exp else 0.0, u_lamp, cal, float(r.cov_scale), chi2,
+        per_capture(res_w / w).reshape(len(angles), len(rots), P), n_rows,
         {k: float(r.params[k]) for k in names}, preset, material,
         [p.name for p in sysp] + [p.name for p in perts if p.kind == "random"],
         dict(res.summary["budget"]["expanded"]),
     )  # fmt: skip
 
 
-def _u2(c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray) -> NDArray:
-    """Predicted squared standard uncertainty (P,) of the plan ``amask`` x ``rmask``."""
+def _timing(c: _LBLCandidates) -> Any:
+    from gonio.simulator.lbl_timing import TIMINGS
+
+    return TIMINGS["ward1992" if c.preset == "ward1992" else "modern"]
+
+
+def _plan_vectors(
+    c: _LBLCandidates, amask: NDArray, rmask: NDArray, every: int
+) -> tuple[list[NDArray], list[str], float]:  # fmt: skip
+    """The plan's own systematic terms (:data:`_PLAN_TERMS`, the re-measured standards'
+    anchors) as ``Σ_g Jᵀ W δy_g`` vectors (``u`` included), and the factor of the exposure
+    terms' ``u`` against the candidate campaign's.
+
+    The lamp: each sample capture's time ``t_m`` and its standard's ``t_s`` from the
+    plan's schedule (:func:`gonio.simulator.lbl_timing.schedule`, three frames a capture, as
+    the campaign's lamp clock), ``δy = y f(t_m, t_s)`` (:func:`gonio.campaign.budget_terms.
+    lamp_terms`); with the standard re-measured after every ``every``-th angle of each
+    rotation (a swap after the sample's capture, as :meth:`gonio.campaign.lbl.
+    SimulatedInstrument.shoot_restandard` stamps it), what the interpolation between those
+    anchors leaves, and each anchor's own exposure scatter."""
+    from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
+    from gonio.simulator.lbl_timing import schedule
+
+    sel = amask[:, None] & rmask[None, :]
+    # the budget's rules (gonio.campaign.knowledge): one u for every capture, that of the
+    # bracket with the most frames; the table's u the RMS over the captures with stops
+    u_cap = float(c.ucap[sel].min())
+    scale = u_cap / c.u_capture if c.u_capture > 0 else 1.0
+    S = c.S[amask][:, rmask]  # (na, nr, P)
+    out, names = [], []
+    t2 = c.tab2[sel]
+    if np.isfinite(t2).any():
+        u_tab = math.sqrt(float(np.nanmean(t2)))
+        if u_tab > 0:
+            out.append(u_tab * S.sum(axis=(0, 1)))
+            names.append("exposure_table")
+    if not c.u_lamp:
+        return out, names, scale
+    angles, rots = c.angles[amask], c.rotations[rmask]
+    timing = _timing(c)
+    clock = {(e["kind"], e["theta_i_deg"], e["rotation_deg"]): e["start_s"]
+             for e in schedule(angles, rots, 3, timing)}  # fmt: skip
+    tm = np.array([[clock[("measured", a, r)] for r in rots] for a in angles])
+    ts = np.array([clock[("standard", a, None)] for a in angles])[:, None] * np.ones(len(rots))
+    shapes = {"lamp_warmup": lambda a, b: np.exp(-b / tau) - np.exp(-a / tau),
+              "lamp_drift": lambda a, b: (a - b) / 3600.0}  # fmt: skip
+    if every:
+        k = np.arange(len(angles)) % every == 0
+        ta, tsa = (tm[k] + 1.0 + timing.swap_s).ravel(), ts[k].ravel()
+        order = np.argsort(ta, kind="stable")
+        ta, tsa = ta[order], tsa[order]
+    for name, f in shapes.items():
+        u = c.u_lamp.get(name, 0.0)
+        if u <= 0:
+            continue
+        rel = f(tm, ts)
+        if every:
+            rel = rel - np.interp(tm, ta, f(ta, tsa))
+        out.append(u * np.einsum("ar,arp->p", rel, S))
+        names.append(name)
+    if every and u_cap > 0:
+        for j in range(ta.size):
+            unit = np.zeros(ta.size)
+            unit[j] = 1.0
+            w = np.interp(tm, ta, unit)
+            out.append(-math.sqrt(2.0) * u_cap * np.einsum("ar,arp->p", w, S))
+            names.append(f"lamp_anchor[{j}]")
+    return out, names, scale
+
+
+def _u2(
+    c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray, every: int = 0,
+    parts: bool = False,
+) -> NDArray:  # fmt: skip
+    """Predicted squared standard uncertainty (P,) of the plan ``amask`` x ``rmask`` with
+    the standard re-measured after every ``every``-th angle (0: never); ``parts``: as
+    ``(statistical, systematic, random)``."""
     sel = amask[:, None] & rmask[None, :]
     F = c.F[sel].sum(axis=0) + np.diag(ridge)
     C = np.linalg.inv(F)
-    out = np.diag(C) * c.cov_scale + np.sum((C @ c.B[sel].sum(axis=0)) ** 2, axis=1)
+    stat = np.diag(C) * _cov_scale(c, sel, C)
+    vecs, _, scale = _plan_vectors(c, amask, rmask, every)
+    Bs = c.B[sel].sum(axis=0)
+    if vecs:
+        Bs = np.concatenate([Bs, np.stack(vecs, axis=1)], axis=1)
+    sys = np.sum((C @ Bs) ** 2, axis=1)
+    rnd = np.zeros_like(stat)
     flat = sel.reshape(-1)
-    for grp, g, vec in c.rand:
+    for (grp, g, vec), is_exp in zip(c.rand, c.rand_exposure):
         keep = flat[g]
         if not keep.any():
             continue
         n_c = int(grp.max()) + 1
         R = np.zeros((n_c, vec.shape[1]))
         np.add.at(R, grp[keep], vec[keep])
-        out += np.sum((R @ C.T) ** 2, axis=0)
-    return out
+        rnd += np.sum((R @ C.T) ** 2, axis=0) * (scale**2 if is_exp else 1.0)
+    if parts:
+        return np.stack([stat, sys, rnd])
+    return stat + sys + rnd
 
 
-def _u2_worst(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, ridge: NDArray):
-    """:func:`_u2` on every design instrument, each parameter's worst (largest)."""
-    return np.max([_u2(c, amask, rmask, ridge) for c in cs], axis=0)
+def _cov_scale(c: _LBLCandidates, sel: NDArray, C: NDArray) -> float:
+    """The plan's fit's covariance factor ``max(1, χ²/dof)`` (:func:`gonio.fit.fit` with
+    known σ): its captures' χ² at the candidate fit less what refitting them alone removes
+    to first order (``bᵀ F⁻¹ b``, ``b = Σ Jᵀ W r``), over ``n - P`` degrees of freedom —
+    the instrument's misfit differs from capture to capture, so a plan's factor is its
+    own, not the candidate campaign's."""
+    b = c.jr[sel].sum(axis=0)
+    chi2 = float(c.chi2[sel].sum()) - float(b @ C @ b)
+    dof = int(c.n_rows[sel].sum()) - len(c.names)
+    return max(1.0, chi2 / dof) if dof > 0 else c.cov_scale
 
 
-def _hours(c: _LBLCandidates, amask: NDArray, rmask: NDArray) -> float:
+def _spread_factor(k: int) -> float:
+    """One-sided 95 % prediction factor for the U of an instrument not yet seen, from ``k``
+    instruments' U (Student's t with k - 1 degrees of freedom, × √(1 + 1/k))."""
+    if k < 2:
+        return 0.0
+    from scipy.stats import t
+
+    return float(t.ppf(0.95, k - 1) * math.sqrt(1.0 + 1.0 / k))
+
+
+def _U_all(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, ridge: NDArray,
+           every: int = 0) -> NDArray:  # fmt: skip
+    """Expanded U (k = 2) on every design instrument, (K, P)."""
+    return 2.0 * np.sqrt(np.stack([_u2(c, amask, rmask, ridge, every) for c in cs]))
+
+
+def _U95(U: NDArray) -> tuple[NDArray, NDArray]:
+    """(central U: the design instruments' mean, U at 95 % over instruments)."""
+    m = U.mean(axis=0)
+    if U.shape[0] < 2:
+        return m, m
+    return m, m + _spread_factor(U.shape[0]) * U.std(axis=0, ddof=1)
+
+
+def _n_anchors(n_angles: int, n_rotations: int, every: int) -> int:
+    return 0 if not every else n_rotations * (-(-n_angles // every))
+
+
+def plan_hours(
+    theta_i_deg: Any, rotations_deg: Any, preset: str = "modern", restandard_every: int = 0
+) -> float:  # fmt: skip
+    """Real-instrument hours of an LBL plan (:func:`gonio.simulator.lbl_timing.
+    estimate_run_time`, three frames a capture) plus two swaps (sample out, standard in and
+    back) for each re-measured standard."""
     from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
 
+    timing = TIMINGS["ward1992" if preset == "ward1992" else "modern"]
+    t = estimate_run_time(list(theta_i_deg), list(rotations_deg), 3, timing)["total_s"]
+    n_a = _n_anchors(len(theta_i_deg), len(rotations_deg), int(restandard_every))
+    return (t + 2.0 * timing.swap_s * n_a) / 3600.0
+
+
+def _hours(c: _LBLCandidates, amask: NDArray, rmask: NDArray, every: int = 0) -> float:
     if not amask.any() or not rmask.any():
         return 0.0
-    timing = TIMINGS.get(c.preset, TIMINGS["modern"])
-    return estimate_run_time(c.angles[amask], c.rotations[rmask], 3, timing)["total_s"] / 3600.0
+    return plan_hours(c.angles[amask], c.rotations[rmask], c.preset, every)
 
 
 @dataclasses.dataclass
 class LBLDesign:
-    """A designed LBL plan and its prediction beside the default plan's."""
+    """A designed LBL plan and its prediction beside the default plan's: per parameter the
+    central U (``predicted``: the design instruments' mean) and the U at 95 % over
+    instruments (``predicted_95``, compared with the target)."""
 
     material: str
     theta_i_deg: tuple[float, ...]
     rotations_deg: tuple[float, ...]
     targets: dict[str, float]
-    predicted: dict[str, float]  # U per parameter
+    predicted: dict[str, float]  # central U per parameter
     hours: float
     default: dict[str, Any]
     design_s: float
     not_met: list[str]
+    predicted_95: dict[str, float] = dataclasses.field(default_factory=dict)
+    restandard_every: int = 0
+    unreachable: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    cadence: dict[str, Any] = dataclasses.field(default_factory=dict)
+    n_instruments: int = 1
 
     def table(self) -> str:
+        re = (f"standard re-measured every {self.restandard_every} angle(s) of each rotation"
+              if self.restandard_every else "standard not re-measured")  # fmt: skip
         lines = [
             f"{self.material} (lbl): designed {len(self.theta_i_deg)} incidence angles x "
             f"{len(self.rotations_deg)} rotations, {self.hours:.3f} h; default "
             f"{self.default['n_angles']} x {self.default['n_rotations']}, "
             f"{self.default['hours']:.3f} h (real instrument, estimated)",
             f"  angles {list(self.theta_i_deg)}, rotations {list(self.rotations_deg)}",
-            f"  {'parameter':<10}{'target U':>12}{'designed U':>12}{'default U':>12}",
+            f"  cadence: {re} (restandard_every {self.restandard_every}); exposure brackets: "
+            "the instrument's own (auto)",
+            f"  {'parameter':<10}{'target U':>12}{'designed U':>12}{'U (95 %)':>12}"
+            f"{'default U':>12}",
         ]
         for p, u in self.predicted.items():
             t = self.targets.get(p, math.nan)
-            lines.append(f"  {p:<10}{t:>12.4g}{u:>12.4g}{self.default['predicted'][p]:>12.4g}")
+            u95 = self.predicted_95.get(p, u)
+            lines.append(f"  {p:<10}{t:>12.4g}{u:>12.4g}{u95:>12.4g}"
+                         f"{self.default['predicted'][p]:>12.4g}")  # fmt: skip
+        n_t = len(self.targets) - len(self.unreachable)
         lines.append(
-            f"  targets met (predicted): {len(self.targets) - len(self.not_met)}/"
-            f"{len(self.targets)}; design {self.design_s:.1f} s"
+            f"  targets met (predicted at 95 % over {self.n_instruments} design instruments): "
+            f"{n_t - len(self.not_met)}/{n_t}; design {self.design_s:.1f} s"
         )
+        for p, u in self.unreachable.items():
+            lines.append(f"  unreachable: {p} target {u['target']:.4g} <= floor {u['floor']:.4g}"
+                         f" ({u['dominant']})")  # fmt: skip
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+#: re-standard cadences the search tries (0: never; N: after every N-th angle)
+CADENCES = (0, 1, 2, 3, 4, 6)
 
 
 def design_lbl(
@@ -219,30 +479,42 @@ def design_lbl(
     preset: str = "modern",
     time_limit_h: float | None = None,
     default_factor: float | None = None,
-    margin: float = 0.1,
-    n_instruments: int = 3,
+    margin: float = 0.0,
+    n_instruments: int = 6,
     candidates: _LBLCandidates | list[_LBLCandidates] | None = None,
+    truth: Any = None,
 ) -> LBLDesign:
     """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
     parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
-    default plan's predicted U instead (``1``: the default plan's uncertainty).
+    default plan's predicted (central) U instead (``1``: the default plan's uncertainty).
+    ``truth``: the prior's model (default the material preset's; the adaptive campaign
+    gives its pilot's fit).
 
-    The calibration of each physical instrument leaves it its own uncertainties, so the
-    candidate campaign runs on ``n_instruments`` instruments of the preset (instrument seeds
-    1000, 1001, ...; never those of the campaigns to come) and every prediction is the worst
-    of them per parameter (measured, rolled brass, one design instrument: achieved U on 20
-    other instruments up to 1.38 times the prediction for ρd)."""
+    The calibration of each physical instrument leaves it its own uncertainties (its f-stop
+    table's, its exposure scatter's), which the design cannot know before the instrument
+    is calibrated; so the candidate campaign runs on ``n_instruments`` instruments of the
+    preset (instrument seeds 1000, 1001, ...; never those of the campaigns to come), the
+    central prediction is their mean U and the design meets each target with the U at 95 %
+    over instruments: the one-sided prediction bound for an instrument not yet seen (mean
+    + t₀.₉₅,ₖ₋₁ √(1 + 1/K) × their standard deviation). A target at or below the floor
+    (the 95 % bound of the systematic terms alone on the full candidate set, the terms
+    more data does not shrink) is reported unreachable with its dominant term, not chased.
+    ``margin``: a further fraction below each target the search aims at."""
     from gonio.campaign.design import parse_targets
 
     t0 = time.perf_counter()
     if time_limit_h is not None and not (math.isfinite(time_limit_h) and time_limit_h > 0):
         raise DesignError(f"time limit {time_limit_h!r} h: expected a positive number of hours")
+    if default_factor is not None and not (math.isfinite(default_factor) and default_factor > 0):
+        raise DesignError(f"default factor {default_factor!r}: expected a positive number")
+    if not 0.0 <= margin < 1.0:
+        raise DesignError(f"margin {margin!r}: expected a fraction in [0, 1)")
     tg = parse_targets(None) if targets is None else targets
     if candidates is None:  # the cheap checks before the candidate campaign
         _precheck(material, tg, preset, time_limit_h)
     if candidates is None:
-        cs = [lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k)
-              for k in range(max(1, int(n_instruments)))]  # fmt: skip
+        cs = [lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k,
+                             truth=truth) for k in range(max(1, int(n_instruments)))]  # fmt: skip
     else:
         cs = list(candidates) if isinstance(candidates, list | tuple) else [candidates]
     c = cs[0]
@@ -256,10 +528,12 @@ def design_lbl(
     ridge = np.array([1e-6 / (100 * max(abs(v), 1e-3)) ** 2 for v in c.params.values()])
     all_a = np.ones(len(c.angles), bool)
     all_r = np.ones(len(c.rotations), bool)
-    u_def = 2.0 * np.sqrt(_u2_worst(cs, all_a, all_r, np.zeros(P)))
+    zero = np.zeros(P)
+    u_def, u_def95 = _U95(_U_all(cs, all_a, all_r, zero))
     default = {"n_angles": len(c.angles), "n_rotations": len(c.rotations),
                "hours": _hours(c, all_a, all_r),
-               "predicted": dict(zip(c.names, map(float, u_def)))}  # fmt: skip
+               "predicted": dict(zip(c.names, map(float, u_def))),
+               "predicted_95": dict(zip(c.names, map(float, u_def95)))}  # fmt: skip
     tabs: dict[str, float] = {}
     for i, p in enumerate(c.names):
         if default_factor is not None:
@@ -271,38 +545,115 @@ def design_lbl(
             tabs[p] = v * abs(c.params[p]) if rel else v
     t2 = np.array([tabs.get(p, math.inf) ** 2 for p in c.names]) * (1 - margin) ** 2
     limit = math.inf if time_limit_h is None else time_limit_h
-    quickest = min(_hours(c, np.eye(len(c.angles), dtype=bool)[0], np.eye(len(c.rotations),
-                   dtype=bool)[0]), math.inf)  # fmt: skip
+    one = np.eye(len(c.angles), dtype=bool)[0], np.eye(len(c.rotations), dtype=bool)[0]
+    quickest = _hours(c, *one)
     if quickest > limit:
         raise DesignError(
             f"time limit {time_limit_h} h: no plan can meet it (one angle at one rotation "
             f"takes {quickest:.3g} h)"
         )
-    zero = np.zeros(P)
+    best = _search(cs, t2, ridge, limit)
+    unreachable: dict[str, dict[str, Any]] = {}
+    if best[0]:  # a target missed: is it out of reach alone? (then not chased)
+        for i, p in enumerate(c.names):
+            if not math.isfinite(t2[i]):
+                continue
+            _, u95 = _U95(_U_all(cs, best[3], best[4], zero, best[2]))
+            if u95[i] ** 2 <= t2[i]:
+                continue
+            alone = np.full(P, math.inf)
+            alone[i] = t2[i]
+            b1 = _search(cs, alone, ridge, limit)
+            if b1[0]:
+                _, f95 = _U95(_U_all(cs, b1[3], b1[4], zero, b1[2]))
+                unreachable[p] = {"target": tabs[p], "floor": float(f95[i]),
+                                  "dominant": _dominant_term(cs[0], b1[3], b1[4], i)}  # fmt: skip
+                t2[i] = math.inf
+        if unreachable:
+            best = _search(cs, t2, ridge, limit)
+    _, _, every, amask, rmask = best
+    every = min(int(every), int(amask.sum()))  # (the same anchors; a plan refuses a larger one)
+    u, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+    pred = dict(zip(c.names, map(float, u)))
+    pred95 = dict(zip(c.names, map(float, u95)))
+    cadence = _cadence_table(cs, amask, rmask, zero, t2)
+    return LBLDesign(
+        material, tuple(map(float, c.angles[amask])), tuple(map(float, c.rotations[rmask])),
+        tabs, pred, _hours(c, amask, rmask, every), default, time.perf_counter() - t0,
+        [p for p in tabs if p not in unreachable and pred95[p] > tabs[p]], pred95, int(every),
+        unreachable, cadence, len(cs),
+    )  # fmt: skip
+
+
+def _phi(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, every: int,
+         t2: NDArray) -> float:  # fmt: skip
+    zero = np.zeros(len(cs[0].names))
+    _, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+    return float(_objective(u95**2 / 4.0, zero, t2))
+
+
+def _search(cs: list[_LBLCandidates], t2: NDArray, ridge: NDArray, limit: float) -> tuple:
+    """Every set of rotations x every cadence of :data:`CADENCES` (denser only while the
+    targets are missed): greedy angles; the quickest plan that meets every target, else the
+    one that comes closest. Returns ``(missed, hours or objective, every, amask, rmask)``."""
+    c = cs[0]
+    zero = np.zeros(len(c.names))
     best = None
     for k in range(1, len(c.rotations) + 1):
         for rsel in itertools.combinations(range(len(c.rotations)), k):
             rmask = np.zeros(len(c.rotations), bool)
             rmask[list(rsel)] = True
-            amask = _greedy_angles(cs, rmask, t2, ridge, limit)
-            if not amask.any():
-                continue
-            u2 = _u2_worst(cs, amask, rmask, zero)
-            phi = float(_objective(u2, np.zeros(P), t2))
-            h = _hours(c, amask, rmask)
-            cand = (phi > 0, h if phi <= 0 else phi, amask, rmask, u2)
-            if best is None or cand[:2] < best[:2]:
-                best = cand
+            base, phi0 = None, math.inf
+            for every in CADENCES:
+                if base is not None and every and _phi(cs, base, rmask, every, t2) >= phi0:
+                    continue  # this cadence does not help the angles chosen without one
+                amask = _greedy_angles(cs, rmask, t2, ridge, limit, every)
+                if not amask.any():
+                    continue
+                _, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+                phi = float(_objective(u95**2 / 4.0, zero, t2))
+                h = _hours(c, amask, rmask, every)
+                cand = (phi > 0, h if phi <= 0 else phi, every, amask, rmask)
+                if best is None or cand[:3] < best[:3]:
+                    best = cand
+                if phi <= 0:  # met at this cadence: a denser one costs more time
+                    break
+                if base is None:
+                    base, phi0 = amask, phi
     if best is None:
         raise DesignError("no plan within the time limit identifies every parameter")
-    _, _, amask, rmask, u2 = best
-    u = 2.0 * np.sqrt(u2)
-    pred = dict(zip(c.names, map(float, u)))
-    return LBLDesign(
-        material, tuple(map(float, c.angles[amask])), tuple(map(float, c.rotations[rmask])),
-        tabs, pred, _hours(c, amask, rmask), default, time.perf_counter() - t0,
-        [p for p in tabs if pred[p] > tabs[p]],
-    )  # fmt: skip
+    return best
+
+
+def _dominant_term(c: _LBLCandidates, amask: NDArray, rmask: NDArray, j: int) -> str:
+    sel = amask[:, None] & rmask[None, :]
+    C = np.linalg.inv(c.F[sel].sum(axis=0))
+    vecs, extra, _ = _plan_vectors(c, amask, rmask, 0)
+    names = c.term_names[: c.B.shape[-1]] + extra
+    cols = c.B[sel].sum(axis=0)
+    if vecs:
+        cols = np.concatenate([cols, np.stack(vecs, axis=1)], axis=1)
+    contrib: dict[str, float] = {}
+    for n, v in zip(names, (C @ cols)[j] ** 2):
+        base = n.split("[")[0]
+        contrib[base] = contrib.get(base, 0.0) + float(v)
+    return max(contrib, key=contrib.get) if contrib else "-"
+
+
+def _cadence_table(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, ridge: NDArray,
+                   t2: NDArray) -> dict[str, Any]:  # fmt: skip
+    """The designed angles and rotations at every cadence of :data:`CADENCES`: hours, the
+    lamp's share, targets met (the choice's evidence, in the plan file)."""
+    c = cs[0]
+    out = {}
+    for every in CADENCES:
+        if every > int(amask.sum()):
+            continue
+        _, u95 = _U95(_U_all(cs, amask, rmask, ridge, every))
+        out[str(every)] = {"hours": round(_hours(c, amask, rmask, every), 5),
+                           "targets_met": bool(_objective(u95**2 / 4.0, ridge, t2) <= 0),
+                           "U_95": dict(zip(c.names, map(float, u95)))}  # fmt: skip
+    return out
 
 
 def _precheck(material: str, tg: dict, preset: str, time_limit_h: float | None) -> None:
@@ -330,10 +681,12 @@ def _precheck(material: str, tg: dict, preset: str, time_limit_h: float | None) 
 
 
 def _greedy_angles(
-    cs: list[_LBLCandidates], rmask: NDArray, t2: NDArray, ridge: NDArray, limit_h: float
-) -> NDArray:
-    """Forward selection of incidence angles at rotations ``rmask``, then backward pruning
-    (the worst of the design instruments)."""
+    cs: list[_LBLCandidates], rmask: NDArray, t2: NDArray, ridge: NDArray, limit_h: float,
+    every: int = 0,
+) -> NDArray:  # fmt: skip
+    """Forward selection of incidence angles at rotations ``rmask`` with the re-standard
+    cadence ``every``, then backward pruning (each target against the U at 95 % over the
+    design instruments)."""
     c = cs[0]
     P = len(c.names)
     zero = np.zeros(P)
@@ -342,16 +695,17 @@ def _greedy_angles(
     def phi_of(m: NDArray, rid: NDArray = ridge) -> float:
         if not m.any():
             return math.inf
-        return float(_objective(_u2_worst(cs, m, rmask, rid), zero, t2))
+        _, u95 = _U95(_U_all(cs, m, rmask, rid, every))
+        return float(_objective(u95**2 / 4.0, zero, t2))
 
     cur = math.inf
     while True:
         best, gain = None, 0.0
-        h0 = _hours(c, amask, rmask)
+        h0 = _hours(c, amask, rmask, every)
         for a in np.flatnonzero(~amask):
             m = amask.copy()
             m[a] = True
-            h = _hours(c, m, rmask)
+            h = _hours(c, m, rmask, every)
             if h > limit_h:
                 continue
             ph = phi_of(m)
@@ -383,7 +737,10 @@ def write_lbl_plan(path: Any, d: LBLDesign) -> None:
     from gonio.io.atomic import atomic_write_bytes
 
     obj = {"instrument": "lbl", "material": d.material, "theta_i_deg": list(d.theta_i_deg),
-           "rotations_deg": list(d.rotations_deg), "restandard_every": 0,
+           "rotations_deg": list(d.rotations_deg), "restandard_every": d.restandard_every,
            "estimated_real_instrument_h": round(d.hours, 5),
-           "predicted_U": d.predicted, "targets_U": d.targets}  # fmt: skip
+           "predicted_U": d.predicted, "predicted_U_95": d.predicted_95,
+           "targets_U": d.targets, "unreachable": d.unreachable,
+           "cadence": {"restandard_every": d.restandard_every, "exposures_s": "auto",
+                       "tried": d.cadence}}  # fmt: skip
     atomic_write_bytes(path, (json.dumps(obj, indent=1) + "\n").encode())

@@ -380,10 +380,13 @@ class CampaignBudget(Budget):
     """A campaign's :class:`~gonio.campaign.budget.Budget` with what it was built from: the
     fitted samples (as the budget saw them) and every term's
     :class:`~gonio.campaign.budget.Perturbation` (the fit result is the campaign's); the
-    LBL measurement design decomposes them by capture (:mod:`gonio.campaign.design_lbl`)."""
+    LBL measurement design decomposes them by capture (:mod:`gonio.campaign.design_lbl`),
+    with the captures' ``infos`` (frames, stops, time stamps) and the calibration ``cal``."""
 
     samples: Any = None
     perturbations: tuple[Perturbation, ...] = ()
+    infos: tuple[Mapping[str, Any], ...] = ()
+    cal: Any = None
 
 
 def budget_fields(cal: Any, corrections: Iterable[str] | None = None) -> list:
@@ -443,7 +446,8 @@ def _campaign_budget(
     sens = Sensitivity(result, samples) if terms else None
     b = build_budget(result, samples, terms, sensitivity=sens, k=k)
     kept = {f.name: getattr(b, f.name) for f in dataclasses.fields(b)}
-    return CampaignBudget(**kept, samples=samples, perturbations=tuple(terms))
+    return CampaignBudget(**kept, samples=samples, perturbations=tuple(terms),
+                          infos=tuple(infos), cal=cal)  # fmt: skip
 
 
 def _exposure(samples, cal, spec, corr, infos) -> list:

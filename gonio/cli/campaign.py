@@ -67,15 +67,15 @@ def _plan_options(group) -> None:
     group.add_argument(
         "--adaptive",
         action="store_true",
-        help="cornell: a short pilot, a fit, the plan designed from it (gonio design) to the "
-        "--target uncertainties, then that plan; summary in OUT/adaptive.json",
+        help="a short pilot, a fit, the plan designed from it (gonio design) to the --target "
+        "uncertainties, then that plan; summary in OUT/adaptive.json (cornell or lbl)",
     )
     group.add_argument(
         "--target",
         action="append",
         default=[],
         metavar="NAME=U[%]",
-        help="cornell --adaptive: target expanded uncertainty, as gonio design takes it",
+        help="--adaptive: target expanded uncertainty, as gonio design takes it",
     )
     group.add_argument(
         "--through-drivers",
@@ -267,8 +267,6 @@ _LBL_ONLY = {
 }
 _CORNELL_ONLY = {
     "--through-drivers": ("through_drivers", False),
-    "--adaptive": ("adaptive", False),
-    "--target": ("target", []),
 }
 
 
@@ -300,20 +298,26 @@ def _preset(args, instrument: str, default: str) -> str:
 
 def _run_adaptive(args) -> int:
     from gonio.campaign import design
-    from gonio.campaign.design_adaptive import adaptive_cornell, adaptive_text
+    from gonio.campaign import design_adaptive as da
 
-    if args.plan or args.through_drivers or args.resume:
-        raise ValueError(
-            "--adaptive: designs its own plan (no --plan, --through-drivers, --resume)"
-        )
-    material = args.material or "garnet_red_paint"
+    given = [o for o, a in (("--plan", "plan"), ("--through-drivers", "through_drivers"),
+             ("--resume", "resume"), ("--angles", "angles"), ("--rotations", "rotations"),
+             ("--restandard-every", "restandard_every")) if getattr(args, a)]  # fmt: skip
+    if given:
+        raise ValueError(f"--adaptive: designs its own plan (no {', '.join(given)})")
+    lbl = args.instrument == "lbl"
+    material = args.material or ("rolled_brass" if lbl else "garnet_red_paint")
+    targets = design.parse_targets(args.target or None)
     out = check_output_dir(args.out or f"adaptive_{material}_seed{args.seed}", "--out")
-    s = adaptive_cornell(
-        material, design.parse_targets(args.target or None), out, seed=args.seed,
-        instrument_seed=args.instrument_seed, preset=_preset(args, "cornell", "cornell2005"),
-    )  # fmt: skip
+    check_outputs({}, {"--out": out, "--json": args.json})
+    kw = dict(seed=args.seed, instrument_seed=args.instrument_seed)
+    if lbl:
+        s = da.adaptive_lbl(material, targets, out, preset=_preset(args, "lbl", "modern"), **kw)
+    else:
+        s = da.adaptive_cornell(material, targets, out,
+                                preset=_preset(args, "cornell", "cornell2005"), **kw)  # fmt: skip
     if not args.quiet:
-        print(adaptive_text(s))
+        print(da.adaptive_lbl_text(s) if lbl else da.adaptive_text(s))
     if args.json:
         write_json(args.json, s)
     return 0
@@ -353,6 +357,10 @@ def run(args) -> int:
     _refuse_other_instrument(args)
     if args.instrument == "cornell":
         return _run_cornell(args)
+    if args.adaptive:
+        return _run_adaptive(args)
+    if args.target:
+        raise ValueError("--target: an option of --adaptive (gonio design takes targets too)")
     from gonio import campaign
 
     args.material = args.material or "rolled_brass"

@@ -152,18 +152,68 @@ def test_lbl_full_candidate_set_is_the_campaigns_budget(lbl_cands):
 
 
 def test_lbl_design_meets_the_default_u_and_writes_a_plan_file(lbl_cands, tmp_path):
+    import json
+
     from gonio.campaign import design_lbl
     from gonio.campaign.plan import read_plan_file
 
     r = design_lbl.design_lbl("rolled_brass", candidates=lbl_cands, default_factor=1.5)
-    assert r.not_met == []
+    assert r.not_met == [] and r.unreachable == {}
     for p, t in r.targets.items():
-        assert r.predicted[p] <= t
+        assert r.predicted[p] <= r.predicted_95[p] <= t
     assert r.hours <= r.default["hours"]
     path = tmp_path / "plan.json"
     design_lbl.write_lbl_plan(path, r)
     kw = read_plan_file(path)
     assert kw["theta_i_deg"] == r.theta_i_deg and kw["rotations_deg"] == r.rotations_deg
+    assert kw["restandard_every"] == r.restandard_every
+    cadence = json.loads(path.read_text())["cadence"]
+    assert cadence["restandard_every"] == r.restandard_every and "0" in cadence["tried"]
+
+
+@pytest.mark.parametrize(
+    ("angles", "rotations", "every"), [((20.0, 60.0), (0.0,), 0), ((20.0, 40.0), (0.0, 90.0), 1)]
+)
+def test_lbl_subset_prediction_is_the_subset_campaigns_budget(lbl_cands, angles, rotations,
+                                                              every):  # fmt: skip
+    """A plan of some of the candidate captures (and a re-standard cadence), run as its own
+    campaign on the design instrument: its budget's U is the prediction (the plan's own
+    brackets' exposure u, f-stop table u, lamp schedule and anchors, fit's χ²/dof)."""
+    from gonio import campaign
+    from gonio.campaign import design_lbl
+
+    c = lbl_cands
+    am, rm = np.isin(c.angles, angles), np.isin(c.rotations, rotations)
+    pred = 2 * np.sqrt(design_lbl._u2(c, am, rm, np.zeros(len(c.names)), every))
+    res = campaign.run(
+        campaign.Plan(material="rolled_brass", plots=False, seed=1000, instrument_seed=1000,
+                      theta_i_deg=angles, rotations_deg=rotations, restandard_every=every),
+        None, workers=1,
+    )  # fmt: skip
+    got = [res.summary["budget"]["expanded"][p] for p in c.names]
+    np.testing.assert_allclose(got, pred, rtol=0.01)
+
+
+def test_lbl_a_drifting_lamp_gets_a_denser_cadence(lbl_cands):
+    """The same targets on an instrument whose lamp is specified to warm up and drift 30
+    times as much: the design re-measures the standard (the lamp's terms left by the
+    interpolation between anchors against two swaps each); the stable lamp's does not."""
+    import dataclasses
+
+    from gonio.campaign import design_lbl
+
+    c = lbl_cands
+    stable = design_lbl.design_lbl("rolled_brass", candidates=c, default_factor=1.5)
+    tg = {p: (t, False) for p, t in stable.targets.items()}
+    lamp = {k: 30.0 * v for k, v in c.u_lamp.items()}
+    drifting = design_lbl.design_lbl(
+        "rolled_brass", tg, candidates=dataclasses.replace(c, u_lamp=lamp)
+    )
+    assert stable.restandard_every == 0
+    assert drifting.restandard_every > 0 and drifting.not_met == []
+    # its cadence is what meets the targets: without one they are missed
+    assert not drifting.cadence["0"]["targets_met"]
+    assert drifting.hours > stable.hours
 
 
 def test_lbl_bad_input_before_the_candidate_campaign():
@@ -228,3 +278,42 @@ def test_adaptive_campaign_stages(tmp_path):
     for p, f in s["final"].items():
         assert abs(f["achieved_U"] / f["predicted_U"] - 1) < 0.25, p
     assert json.loads((tmp_path / "a" / "adaptive.json").read_text())["n_met"] == s["n_met"]
+
+
+def test_lbl_adaptive_campaign_stages(tmp_path):
+    """The LBL adaptive campaign: pilot, design from the pilot's fit (its estimate, not the
+    preset's values), the designed plan; each stage's hours and the final U in the summary."""
+    import json
+
+    from gonio.campaign.design_adaptive import LBL_PILOT_ANGLES, adaptive_lbl
+    from gonio.campaign.plan import read_plan_file
+
+    s = adaptive_lbl("rolled_brass", d.parse_targets(["all=5%"]), tmp_path / "a",
+                     n_instruments=1, candidate_angles_deg=(20.0, 40.0, 60.0))  # fmt: skip
+    st = s["stages"]
+    assert st["pilot"]["n_angles"] == len(LBL_PILOT_ANGLES) and st["pilot"]["n_rotations"] == 2
+    assert st["pilot"]["real_instrument_h"] > 0 and st["main"]["real_instrument_h"] > 0
+    assert s["real_instrument_h"] == pytest.approx(
+        st["pilot"]["real_instrument_h"] + st["main"]["real_instrument_h"]
+    )
+    prior = st["design"]["prior"][0]
+    pilot = json.loads((tmp_path / "a" / "pilot" / "summary.json").read_text())["fit"]
+    assert prior["alpha_x"] == pytest.approx(pilot["alpha_x"]) and prior["alpha_x"] != 0.05
+    plan = read_plan_file(tmp_path / "a" / "designed_plan.json")
+    main = json.loads((tmp_path / "a" / "main" / "plan.json").read_text())
+    assert tuple(main["theta_i_deg"]) == plan["theta_i_deg"]
+    assert main["restandard_every"] == plan["restandard_every"]
+    assert set(s["final"]) == {"rho_d", "rho_s", "alpha_x", "alpha_y"}
+    for p, f in s["final"].items():
+        assert f["met"] == (f["achieved_U"] <= f["target"]) and f["achieved_U"] > 0, p
+    assert json.loads((tmp_path / "a" / "adaptive.json").read_text())["n_met"] == s["n_met"]
+
+
+def test_lbl_adaptive_refuses_a_bad_target_before_the_pilot(tmp_path):
+    from gonio.campaign.design_adaptive import adaptive_lbl
+
+    with pytest.raises(d.DesignError, match="'tau' is not a parameter of ward"):
+        adaptive_lbl("rolled_brass", d.parse_targets(["tau=1%"]), tmp_path / "a")
+    with pytest.raises(d.DesignError, match="n_instruments 11"):
+        adaptive_lbl("rolled_brass", None, tmp_path / "a", n_instruments=11)
+    assert not (tmp_path / "a").exists()

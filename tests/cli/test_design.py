@@ -50,6 +50,8 @@ def test_design_writes_a_plan_the_campaign_reads(tmp_path, capsys):
         (["--prior", "alpha_x=0.01:0.1"], "options of --instrument cornell only"),
         (["--default-u", "0"], "expected a positive factor"),
         (["--preset", "cornell2005"], "not an lbl preset"),
+        (["--design-instruments", "0"], "--design-instruments 0: expected 1 to 10"),
+        (["--design-instruments", "11"], "--design-instruments 11: expected 1 to 10"),
     ],
 )
 def test_lbl_bad_input_clear_error_nothing_written(tmp_path, capsys, argv, message):
@@ -87,3 +89,27 @@ def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
     assert main(["campaign", "--instrument", "cornell", *argv, "--out", str(out)]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--adaptive", "--target", "tau=1%"], "'tau' is not a parameter of ward"),
+        (["--adaptive", "--target", "alpha_x=0"], "expected a positive, finite uncertainty"),
+        (["--adaptive", "--angles", "10,20"], "--adaptive: designs its own plan (no --angles)"),
+        (["--adaptive", "--restandard-every", "2"], "designs its own plan (no --restandard"),
+        (["--target", "alpha_x=1%"], "--target: an option of --adaptive"),
+    ],
+)
+def test_lbl_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
+    out = tmp_path / "a"
+    assert main(["campaign", "--instrument", "lbl", *argv, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_cornell_design_refuses_lbl_options(tmp_path, capsys):
+    argv = ["design", "--design-instruments", "2", "--out", str(tmp_path / "p.csv")]
+    assert main(argv) == 2
+    assert "options of --instrument lbl only" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
