@@ -10,8 +10,8 @@ renders its highlight 15 % too bright at θi = 30°, 100 % at 60° and 286 % at 
 * a ``ward_gmd`` fit becomes ``plastic2`` / ``metal2`` (:func:`ward_material`): ``urough =
   alpha_x`` along the sample's x axis, ``vrough = alpha_y``;
 * every other model with a translation (:data:`CAL_MODELS`: ``ward`` eq. 5a, ``ward_approx``
-  eq. 5b, ``ward_neumann``, ``ward_duer``, ``cook_torrance``, ``lafortune``, ``lambert`` and
-  sums of them) becomes a ``BRTDfunc`` whose ``.cal`` file evaluates the fitted model exactly
+  eq. 5b, ``ward_neumann``, ``ward_duer``, ``cook_torrance``, ``lafortune``, ``lambert``,
+  ``oren_nayar`` (eq. 27-29), ``oren_nayar_qualitative`` (eq. 30) and sums of them) becomes a ``BRTDfunc`` whose ``.cal`` file evaluates the fitted model exactly
   (:func:`model_material`, :func:`cal_function`);
 * a model without one is refused (``ValueError``): never a primitive that renders another
   model.
@@ -346,6 +346,44 @@ def _lafortune(m: BRDF) -> tuple[float, str | None]:
             t += f" / max(iz, oz)^{_g(pe)}"
         terms.append(t)
     return p["rho_d"], (" + ".join(terms) if terms else None)
+
+
+@_cal("oren_nayar", "oren_nayar_qualitative")
+def _oren_nayar(m: BRDF) -> tuple[float, str | None]:
+    """Oren and Nayar 1994, eq. 27-29 (``oren_nayar``) or eq. 30 (``_qualitative``), as gonio
+    evaluates them.
+
+    Radiance drops a ``BRTDfunc``'s negative function values, so the Lambertian part (what
+    indirect light sees) is the model's lower bound, the rest (≥ 0) the function: ``ρ A``
+    for eq. 30; for eq. 27-29 ``ρ max(0, C1 − 6 C2/π)``, since eq. 28 is ≥ 0, the C3 term
+    too, and eq. 27's C2 term ``cos Δφ C2 (sin α − (2β/π)³) tan β`` is ≥ ``−6 C2/π`` (its
+    forward, grazing limit; the supremum of ``(1 − (2β/π)³) tan β``). Where eq. 27-29
+    itself is negative (``KNOWN_ISSUES`` of the model) Radiance renders 0."""
+    p, rho, s2 = m.params, float(m.params["rho"]), float(m.params["sigma"]) ** 2
+
+    def ratio(c: float) -> float:
+        return s2 / (s2 + c) if s2 > 0.0 else 0.0
+
+    c1, c2, c3 = 1.0 - 0.5 * ratio(0.33), 0.45 * ratio(0.09), 0.125 * ratio(0.09)
+    k2 = 0.17 * rho * rho / math.pi * ratio(0.13) if m.name == "oren_nayar" else 0.0
+    if c2 == 0.0 and k2 == 0.0:
+        return rho * c1, None
+    ri, ro = "sqrt(ix*ix + iy*iy)", "sqrt(ox*ox + oy*oy)"
+    sa, sb = f"max({ri}, {ro})", f"min({ri}, {ro})"  # sin α, sin β (α = max(θi, θo))
+    ca, cb = "min(iz, oz)", "max(iz, oz)"
+    cd = f"if({ri}*{ro} - 1e-300, max(-1, min(1, (ix*ox + iy*oy)/({ri}*{ro}))), 0)"
+    tb = f"({sb}/{cb})"
+    k = rho / math.pi
+    if m.name == "oren_nayar_qualitative":
+        return rho * c1, f"{_g(k * c2)} * max(0, {cd}) * {sa} * {tb}"
+    alpha, beta = f"atan2({sa}, {ca})", f"atan2({sb}, {cb})"
+    b = f"({_g(2.0 / math.pi)}*{beta})"
+    c2e = f"{_g(c2)}*if({cd}, {sa}, {sa} - {b}*{b}*{b})"
+    c3e = f"{_g(c3 * 16.0 / math.pi**4)}*{alpha}*{beta}*{alpha}*{beta}"
+    th = f"(({sa} + {sb})/({ca} + {cb}))"
+    floor = max(0.0, c1 - 6.0 * c2 / math.pi)
+    direct = f"{_g(k)}*({_g(c1 - floor)} + {cd}*{c2e}*{tb} + (1 - max({cd}, -{cd}))*{c3e}*{th})"
+    return rho * floor, f"{direct} + {_g(k2)}*(1 - {cd}*{b}*{b})"
 
 
 CAL_MODELS: tuple[str, ...] = tuple(sorted(_CAL))
