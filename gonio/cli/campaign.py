@@ -179,7 +179,8 @@ def _output_options(group) -> None:
     group.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace the results of another plan found in DIR (else refused)",
+        help="replace the results of another plan (LBL) or other settings (Cornell) found in DIR "
+        "(else refused)",
     )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
