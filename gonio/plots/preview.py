@@ -76,20 +76,26 @@ _CAMERA_Y, _HALF_FOV_DEG = -6.0, 11.0
 
 
 def unavailable() -> str | None:
-    """Why a preview cannot be rendered here (no pyradiance and no ``rtrace`` on ``PATH``),
-    or ``None``."""
+    """Why a preview cannot be rendered here, or ``None``: Radiance's ``rtrace`` is looked for
+    where :func:`gonio.io.radiance.radiance_tool` looks (pyradiance's ``bin`` folder, then
+    ``PATH``), without importing pyradiance (0.2 s: this runs in the campaign's process)."""
     import importlib.util
     import shutil
 
     try:
-        found = importlib.util.find_spec("pyradiance") is not None
+        spec = importlib.util.find_spec("pyradiance")
     except (ImportError, ValueError):
-        found = False
-    if found or shutil.which("rtrace") is not None:
+        spec = None
+    for folder in (spec.submodule_search_locations or []) if spec is not None else []:
+        rtrace = Path(folder) / "bin" / "rtrace"
+        if rtrace.is_file() and os.access(rtrace, os.X_OK):
+            return None
+    if shutil.which("rtrace") is not None:
         return None
+    why = "pyradiance is not installed" if spec is None else "pyradiance has no rtrace"
     return (
-        "plots/preview.png not drawn: pyradiance is not installed (pip install "
-        "'gonio[radiance]') and no Radiance rtrace is on PATH"
+        f"plots/preview.png not drawn: {why} (pip install 'gonio[radiance]') and no Radiance "
+        "rtrace is on PATH"
     )
 
 
