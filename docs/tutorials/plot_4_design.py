@@ -28,6 +28,7 @@ unreachable instead of being chased.
 # To keep this page quick the candidates are 5 x 5 viewing directions per incidence angle
 # (``gonio design --grid 5``; the command's default, 13 x 13, takes longer and finds a
 # shorter plan: 5 geometries, 0.028 h).
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -119,3 +120,9 @@ print(lbl_file.read_text())
 # instruments' candidate campaigns at the estimate and at its shape parameters ± their U),
 # then the designed plan; ``OUT/adaptive.json`` gives each stage's hours and the final U
 # against the targets.
+
+# %%
+# The temporary folder (the plan files written above) is removed at the end, so that running
+# the tutorial leaves nothing behind.
+shutil.rmtree(work, ignore_errors=True)
+print("removed", work.name, "->", work.exists())

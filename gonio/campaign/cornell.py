@@ -603,6 +603,7 @@ def run_cornell_campaign(
     reference_every: int | None = None,
     corrections: dict[str, Any] | None = None,
     budget: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run a Cornell campaign end to end; the summary dict (also ``out/summary.json``).
 
@@ -665,6 +666,9 @@ def run_cornell_campaign(
         The uncertainty budget (:mod:`gonio.campaign.cornell_budget`) in the summary.
     on_measurement : callable(j, n), optional
         Called after each geometry through drivers (progress, fault injection in tests).
+    overwrite : bool
+        Replace the results of another campaign found in ``out`` (its ``plan.json`` holds
+        other settings; else refused, as for the LBL campaign).
     """
     with results.locked(Path(out) if out is not None else None):
         # 1. prepare (under the folder's lock)
@@ -674,7 +678,7 @@ def run_cornell_campaign(
             config=config, resolution_deg=resolution_deg, max_geometries=max_geometries,
             plan_kw=plan_kw, through_drivers=through_drivers, effects=effects,
             instrument_seed=instrument_seed, reference_every=reference_every,
-            corrections=corrections, fit=fit,
+            corrections=corrections, fit=fit, resume=resume, overwrite=overwrite,
         )  # fmt: skip
         t_plan = time.perf_counter() - t0
         try:
@@ -826,6 +830,7 @@ def _prepare(
     resolution_deg: float, max_geometries: int | None, plan_kw: dict | None,
     through_drivers: bool, effects: Any = None, instrument_seed: int | None = None,
     reference_every: int | None = None, corrections: dict | None = None, fit: bool = True,
+    resume: bool = False, overwrite: bool = False,
 ) -> _Setup:  # fmt: skip
     """Check the inputs, realise the true instrument, build the ordered plan (refusing the
     geometries whose field of view leaves the lit spot, when asked) and write
@@ -887,6 +892,8 @@ def _prepare(
         "n_refused_footprint": int(n_refused),
     }
     if outp is not None:
+        if outp.is_dir():  # another campaign's results: replaced only with overwrite
+            results.check_settings(outp, settings, resume, overwrite)
         outp.mkdir(parents=True, exist_ok=True)
         results.discard_outputs(outp)  # an earlier run's outputs and unfinished writes
         _write_json(outp / "plan.json", settings)

@@ -39,7 +39,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +53,7 @@ __all__ = [
     "FolderBusy",
     "Frames",
     "check_out",
+    "check_settings",
     "discard_outputs",
     "flush_raw",
     "group_key",
@@ -254,7 +255,7 @@ _TMP = re.compile(r"\..+\.[A-Za-z0-9_]+\.tmp")
 #: A campaign's derived outputs (made from the raw groups; removed when a run starts or fails).
 OUTPUTS = ("samples.csv", "summary.json", "fit.json", "material.rad")
 #: Its plots (``OUT/plots/NAME.png``, LBL and Cornell), also derived outputs.
-PLOT_NAMES = ("incidence_plane", "hemisphere", "residuals", "budget")
+PLOT_NAMES = ("incidence_plane", "hemisphere", "residuals", "budget", "preview")
 #: Its Radiance function file (``OUT/gonio_MATERIAL.cal``, beside ``material.rad``).
 _CAL = re.compile(r"gonio_[A-Za-z0-9_.-]*\.cal")
 
@@ -361,6 +362,48 @@ def check_out(
         )
     _tidy(outp, plan)
     write_json(pfile, plan.to_dict())
+
+
+def check_settings(
+    outp: Path, settings: Mapping[str, Any], resume: bool = False, overwrite: bool = False
+) -> None:
+    """The Cornell campaign's :func:`check_out`: refuse to replace the results of other
+    settings (``plan.json`` differs from ``settings``, or is not readable, or results without
+    one) unless ``overwrite``; a resumed run needs the same settings whatever ``overwrite``."""
+    from gonio.cli._common import to_json
+    from gonio.io.jsonfile import FileFormatError, read_json
+
+    new = json.loads(to_json(settings))  # as plan.json will hold it
+    pfile = outp / "plan.json"
+    if pfile.is_file():
+        try:
+            old = read_json(pfile)
+        except (FileFormatError, ValueError) as exc:
+            if overwrite and not resume:
+                return
+            raise ValueError(f"{exc}; cannot replace its results without --overwrite") from None
+        if not isinstance(old, dict):
+            old = {"plan.json": old}
+        if _canonical(old) == _canonical(new):
+            return
+        diff = sorted(k for k in old.keys() | new.keys()
+                      if _canonical(old.get(k)) != _canonical(new.get(k)))  # fmt: skip
+        shown = ", ".join(f"{k}: {old.get(k)!r} vs {new.get(k)!r}" for k in diff[:4])
+        if resume:
+            raise ValueError(
+                f"cannot resume in {str(outp)!r}: its plan.json differs from this campaign "
+                f"({shown}); use another --out, or --overwrite without --resume"
+            )
+        if not overwrite:
+            raise ValueError(
+                f"{str(outp)!r} holds the results of another campaign (its plan.json: "
+                f"{shown}); use --overwrite to replace them, or another --out"
+            )
+    elif not overwrite and not resume and _has_results(outp):
+        raise ValueError(
+            f"{str(outp)!r} holds campaign results without a plan.json; use --overwrite to "
+            "replace them or another --out"
+        )
 
 
 def _differs(old: Plan, new: Plan) -> bool:

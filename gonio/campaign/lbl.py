@@ -69,7 +69,13 @@ from gonio.campaign.plan import (
     default_plan,
 )
 from gonio.campaign.progress import Progress
-from gonio.campaign.report import CampaignResult, draw, draw_budget, summary_table
+from gonio.campaign.report import (
+    CampaignResult,
+    draw,
+    draw_budget,
+    draw_preview,
+    summary_table,
+)
 from gonio.samples import BRDFSamples
 
 __all__ = [
@@ -160,7 +166,7 @@ def _stages(
         got = ex.pipeline(
             _jobs(setup, resume, quiet, stream), ex=ex, setup=setup, plan=plan,
             truth=setup.truth, lab=setup.lab, corrections=plan.corrections, fields=None,
-            t_start=t_start, title=f"{plan.material} ({plan.model})",
+            t_start=t_start, title=f"{plan.material} ({plan.model})", info=setup.info,
             plots=outp / "plots" if outp is not None else None,
         )  # fmt: skip
     samples, result, compare, summary, budget = (
@@ -215,6 +221,8 @@ def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
         (True, Job("summary", _report, ("plan", "setup", "result", "compare", "samples",
                                         "per_angle", "budget"), ("summary",))),
         (drawn, Job("budget", _draw_budget, ("summary", "plots", "title"), kind="plot")),
+        (drawn and setup.preview, Job("preview", draw_preview, ("truth", "result", "plan", "info",
+                                                              "plots", "title"), kind="plot")),
     ]  # fmt: skip
     return [job for wanted, job in jobs if wanted]
 
@@ -233,6 +241,13 @@ class _Setup:
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
     t_calibration: float | None = None  # seconds to make (or read) it
     warnings: list[str] = field(default_factory=list)  # what the plan will not determine
+
+    @property
+    def preview(self) -> bool:
+        """Whether ``plots/preview.png`` can be rendered here (Radiance found)."""
+        from gonio.plots.preview import unavailable
+
+        return unavailable() is None
 
     @property
     def raw(self) -> Path | None:
@@ -718,6 +733,7 @@ def _report(
     """The summary: the truth against the fit and its budget (the one place where both
     meet)."""
     from gonio.campaign.report import PLOTS, add_budget, summarise
+    from gonio.plots.preview import preview_notes
 
     n_pixels = sum(r["n_pixels"] for r in per_angle)
     n_loaded = sum(r["n_loaded"] for r in per_angle)
@@ -731,6 +747,10 @@ def _report(
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
         if budget is not None:
             summary["files"]["plots"].append("plots/budget.png")
+        cls = str(setup.info.get("class") or "dielectric")  # a preview (half) not drawn: why
+        summary["warnings"] += preview_notes(setup.truth, result.model, cls)
+        if setup.preview:
+            summary["files"]["plots"].append("plots/preview.png")
     effects = getattr(setup.instrument, "effects", None)
     if effects is not None:  # the simulated instrument's truth, beside the fit's
         summary["instrument"] = {

@@ -23,6 +23,7 @@ __all__ = [
     "add_budget",
     "draw",
     "draw_budget",
+    "draw_preview",
     "summarise",
     "summary_table",
     "write_report",
@@ -63,6 +64,20 @@ def draw_budget(name: str, budget: Mapping[str, Any], folder: Path, title: str) 
     from gonio.plots.budget import plot_budget
 
     plot_budget(budget, folder / f"{name}.png", title=title)
+
+
+def draw_preview(
+    name: str, truth: Any, result: Any, plan: Plan, info: Mapping[str, Any], folder: Path,
+    title: str,
+) -> None:  # fmt: skip
+    """``plots/preview.png``: the truth and the fit rendered by Radiance on a sphere, the fit
+    from the material written as ``material.rad`` (:func:`radiance`), and their difference
+    (:func:`gonio.plots.preview.plot_preview`)."""
+    from gonio.plots.preview import plot_preview
+
+    plot_preview(truth, result.model, folder / f"{name}.png", title=title,
+                 material_class=str(info.get("class") or "dielectric"),
+                 fit_material=radiance(plan, info, result))  # fmt: skip
 
 
 def add_budget(summary: dict[str, Any], budget: Any) -> None:

@@ -179,7 +179,8 @@ def _output_options(group) -> None:
     group.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace the results of another plan found in DIR (else refused)",
+        help="replace the results of another plan (LBL) or other settings (Cornell) found in DIR "
+        "(else refused)",
     )
     group.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     group.add_argument(
@@ -187,7 +188,7 @@ def _output_options(group) -> None:
         type=int_in(50, 1200, "dots per inch"),
         default=None,
         metavar="DPI",
-        help="resolution of the PNG plots (default 200; 300-600 for print)",
+        help="resolution of the PNG plots (default 150; 300-600 for print)",
     )
     group.add_argument(
         "--workers",
@@ -263,7 +264,6 @@ _LBL_ONLY = {
     "--binning": ("binning", None),
     "--restandard-every": ("restandard_every", 0),
     "--raw": ("raw", "keep"),
-    "--overwrite": ("overwrite", False),
 }
 _CORNELL_ONLY = {
     "--through-drivers": ("through_drivers", False),
@@ -296,13 +296,52 @@ def _preset(args, instrument: str, default: str) -> str:
     return p
 
 
+#: The fit's hints (:func:`gonio.hints.keyword`) in a campaign's own terms, per instrument:
+#: a campaign fits its model from the fit's own starts, with nothing held fixed by the user,
+#: so it cannot pass ``fixed=``, ``n_starts=`` or ``init=``; what it can do is fit a model with
+#: fewer free parameters or measure more geometries, and its ``samples.csv`` can be fitted
+#: again with ``gonio fit``, whose options these keywords are.
+_FIT_HINTS = {
+    "lbl": (
+        "fit a --model with fewer free parameters, measure more geometries (--angles, "
+        "--rotations), or refit samples.csv with gonio fit --fixed NAME=VALUE",
+        "fit another --model, or refit samples.csv with gonio fit --starts N or --init NAME=VALUE",
+    ),
+    "cornell": (
+        "measure more geometries (--plan hemispherical), or refit samples.csv with gonio fit "
+        "--fixed NAME=VALUE",
+        "refit samples.csv with gonio fit --starts N or --init NAME=VALUE",
+    ),
+}
+
+#: Any other phrasing of those hints: ``gonio fit``'s option.
+_FIT_OPTIONS = {
+    "fixed": "gonio fit --fixed",
+    "n_starts": "gonio fit --starts",
+    "init": "gonio fit --init",
+}
+
+
+def campaign_text(text: str, instrument: str = "lbl") -> str:
+    """A campaign's printed report with the fit's hints in the campaign's own options
+    (``fix some (fixed=) or measure more geometries`` -> ``fit a --model with fewer free
+    parameters, measure more geometries (--angles, --rotations), ...``)."""
+    from gonio.hints import as_options, keyword
+
+    fewer, starts = _FIT_HINTS[instrument]
+    text = text.replace(f"fix some ({keyword('fixed')}) or measure more geometries", fewer)
+    text = text.replace(f"try {keyword('n_starts')} or {keyword('init')}", starts)
+    return as_options(text, _FIT_OPTIONS)
+
+
 def _run_adaptive(args) -> int:
     from gonio.campaign import design
     from gonio.campaign import design_adaptive as da
 
     given = [o for o, a in (("--plan", "plan"), ("--through-drivers", "through_drivers"),
              ("--resume", "resume"), ("--angles", "angles"), ("--rotations", "rotations"),
-             ("--restandard-every", "restandard_every")) if getattr(args, a)]  # fmt: skip
+             ("--restandard-every", "restandard_every"), ("--overwrite", "overwrite"))
+             if getattr(args, a)]  # fmt: skip
     if given:
         raise ValueError(f"--adaptive: designs its own plan (no {', '.join(given)})")
     lbl = args.instrument == "lbl"
@@ -342,10 +381,11 @@ def _run_cornell(args) -> int:
         through_drivers=args.through_drivers,
         resume=args.resume,
         quiet=args.quiet,
+        overwrite=args.overwrite,
     )
     s.pop("_samples", None)
     if not args.quiet:
-        print(summary_text(s))
+        print(campaign_text(summary_text(s), "cornell"))
     if args.json:
         write_json(args.json, s)
     return 0 if s.get("converged", True) else 1
@@ -412,7 +452,7 @@ def run(args) -> int:
     keep_raw(res.out, args.raw)
     disk = disk_usage(res.out)
     if not args.quiet:
-        print(campaign.summary_table(res.summary))
+        print(campaign_text(campaign.summary_table(res.summary)))
         print(f"results in {res.out}: {disk['total'] / 1e6:.1f} MB on the disk, raw frames "
               f"{disk['raw'] / 1e6:.1f} MB ({args.raw})")  # fmt: skip
     if args.json:

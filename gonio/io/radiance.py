@@ -10,8 +10,9 @@ renders its highlight 15 % too bright at θi = 30°, 100 % at 60° and 286 % at 
 * a ``ward_gmd`` fit becomes ``plastic2`` / ``metal2`` (:func:`ward_material`): ``urough =
   alpha_x`` along the sample's x axis, ``vrough = alpha_y``;
 * every other model with a translation (:data:`CAL_MODELS`: ``ward`` eq. 5a, ``ward_approx``
-  eq. 5b, ``ward_neumann``, ``ward_duer``, ``cook_torrance``, ``lafortune``, ``lambert`` and
-  sums of them) becomes a ``BRTDfunc`` whose ``.cal`` file evaluates the fitted model exactly
+  eq. 5b, ``ward_neumann``, ``ward_duer``, ``cook_torrance``, ``lafortune``, ``lambert``,
+  ``oren_nayar`` (eq. 27-29), ``oren_nayar_qualitative`` (eq. 30) and sums of them) becomes
+  a ``BRTDfunc`` whose ``.cal`` file evaluates the fitted model exactly
   (:func:`model_material`, :func:`cal_function`);
 * a model without one is refused (``ValueError``): never a primitive that renders another
   model.
@@ -84,6 +85,7 @@ __all__ = [
     "radiance_tool",
     "rendered_brdf",
     "run_tool",
+    "trace",
     "ward_material",
     "ward_params",
     "write_material",
@@ -346,6 +348,44 @@ def _lafortune(m: BRDF) -> tuple[float, str | None]:
             t += f" / max(iz, oz)^{_g(pe)}"
         terms.append(t)
     return p["rho_d"], (" + ".join(terms) if terms else None)
+
+
+@_cal("oren_nayar", "oren_nayar_qualitative")
+def _oren_nayar(m: BRDF) -> tuple[float, str | None]:
+    """Oren and Nayar 1994, eq. 27-29 (``oren_nayar``) or eq. 30 (``_qualitative``), as gonio
+    evaluates them.
+
+    Radiance drops a ``BRTDfunc``'s negative function values, so the Lambertian part (what
+    indirect light sees) is the model's lower bound, the rest (≥ 0) the function: ``ρ A``
+    for eq. 30; for eq. 27-29 ``ρ max(0, C1 − 6 C2/π)``, since eq. 28 is ≥ 0, the C3 term
+    too, and eq. 27's C2 term ``cos Δφ C2 (sin α − (2β/π)³) tan β`` is ≥ ``−6 C2/π`` (its
+    forward, grazing limit; the supremum of ``(1 − (2β/π)³) tan β``). Where eq. 27-29
+    itself is negative (``KNOWN_ISSUES`` of the model) Radiance renders 0."""
+    rho, s2 = float(m.params["rho"]), float(m.params["sigma"]) ** 2
+
+    def ratio(c: float) -> float:
+        return s2 / (s2 + c) if s2 > 0.0 else 0.0
+
+    c1, c2, c3 = 1.0 - 0.5 * ratio(0.33), 0.45 * ratio(0.09), 0.125 * ratio(0.09)
+    k2 = 0.17 * rho * rho / math.pi * ratio(0.13) if m.name == "oren_nayar" else 0.0
+    if c2 == 0.0 and k2 == 0.0:
+        return rho * c1, None
+    ri, ro = "sqrt(ix*ix + iy*iy)", "sqrt(ox*ox + oy*oy)"
+    sa, sb = f"max({ri}, {ro})", f"min({ri}, {ro})"  # sin α, sin β (α = max(θi, θo))
+    ca, cb = "min(iz, oz)", "max(iz, oz)"
+    cd = f"if({ri}*{ro} - 1e-300, max(-1, min(1, (ix*ox + iy*oy)/({ri}*{ro}))), 0)"
+    tb = f"({sb}/{cb})"
+    k = rho / math.pi
+    if m.name == "oren_nayar_qualitative":
+        return rho * c1, f"{_g(k * c2)} * max(0, {cd}) * {sa} * {tb}"
+    alpha, beta = f"atan2({sa}, {ca})", f"atan2({sb}, {cb})"
+    b = f"({_g(2.0 / math.pi)}*{beta})"
+    c2e = f"{_g(c2)}*if({cd}, {sa}, {sa} - {b}*{b}*{b})"
+    c3e = f"{_g(c3 * 16.0 / math.pi**4)}*{alpha}*{beta}*{alpha}*{beta}"
+    th = f"(({sa} + {sb})/({ca} + {cb}))"
+    floor = max(0.0, c1 - 6.0 * c2 / math.pi)
+    direct = f"{_g(k)}*({_g(c1 - floor)} + {cd}*{c2e}*{tb} + (1 - max({cd}, -{cd}))*{c3e}*{th})"
+    return rho * floor, f"{direct} + {_g(k2)}*(1 - {cd}*{b}*{b})"
 
 
 CAL_MODELS: tuple[str, ...] = tuple(sorted(_CAL))
@@ -624,23 +664,42 @@ def rendered_brdf(
         f"gonio_src_mat source gonio_src 0 0 4 {_g(wi[0])} {_g(wi[1])} {_g(wi[2])} 0.01\n"
     )
     floor = "polygon gonio_floor 0 0 12 -10 -10 0 10 -10 0 10 10 0 -10 10 0\n"
-    rays = np.concatenate([wo, -wo], axis=1).astype("<f8").tobytes()
+    origins, dirs = wo, -wo
+    white = RadianceMaterial("gonio_white", "plastic", "void plastic gonio_white 0 0 5 1 1 1 0 0\n")
+    m = trace(material, src + "{material} " + floor, origins, dirs, files=files)
+    ref = trace(white, src + "{material} " + floor, origins, dirs)
+    return m / (np.pi * ref)
+
+
+def trace(
+    material: RadianceMaterial,
+    scene: str,
+    origins: ArrayLike,
+    directions: ArrayLike,
+    files: Sequence[str | os.PathLike] = (),
+    options: Sequence[str] = _RTRACE_OPTS,
+) -> NDArray:
+    """The radiance (RGB, shape ``(N, 3)``) rtrace finds along rays through a scene.
+
+    ``scene`` is Radiance scene text in which ``{material}`` stands for the material's
+    identifier (``material.text``, and its ``.cal`` beside it, come first); ``origins`` and
+    ``directions`` have shape ``(N, 3)``. The default ``options`` (those of
+    :func:`rendered_brdf`) switch off every sampled term, so the result is deterministic:
+    light sources only, each seen through one ray, plus ``-av``'s ambient if passed.
+    ``files`` are copied beside the scene. Runs in a temporary folder, removed after.
+    """
+    o = np.atleast_2d(np.asarray(origins, dtype=np.float64))
+    d = np.atleast_2d(np.asarray(directions, dtype=np.float64))
+    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+        raise ValueError(f"origins and directions must both be (N, 3), got {o.shape}, {d.shape}")
+    rays = np.concatenate([o, d], axis=1).astype("<f8").tobytes()
     with tempfile.TemporaryDirectory(prefix="gonio_rtrace_") as tmp:
         if material.cal is not None:
             Path(tmp, str(material.cal_name)).write_text(material.cal)
         for f in files:
             shutil.copy(f, tmp)
-        out = {}
-        for key, text, nm in (
-            ("m", material.text, material.name),
-            ("ref", "void plastic gonio_white 0 0 5 1 1 1 0 0\n", "gonio_white"),
-        ):
-            Path(tmp, "scene.rad").write_text(src + text + f"{nm} " + floor)
-            Path(tmp, "scene.oct").write_bytes(run_tool(["oconv", "scene.rad"], cwd=tmp))
-            raw = run_tool(
-                ["rtrace", *_RTRACE_OPTS, "scene.oct"],
-                cwd=tmp,
-                stdin=rays,
-            )
-            out[key] = np.frombuffer(raw, dtype="<f8").reshape(-1, 3)
-    return out["m"] / (np.pi * out["ref"])
+        text = material.text + scene.replace("{material}", material.name)
+        Path(tmp, "scene.rad").write_text(text)
+        Path(tmp, "scene.oct").write_bytes(run_tool(["oconv", "scene.rad"], cwd=tmp))
+        raw = run_tool(["rtrace", *options, "scene.oct"], cwd=tmp, stdin=rays)
+    return np.frombuffer(raw, dtype="<f8").reshape(-1, 3)

@@ -43,6 +43,10 @@ def test_results_directory_has_every_file(small_run):
         assert (out / name).is_file(), name
     for name in ("incidence_plane.png", "hemisphere.png", "residuals.png"):
         assert (out / "plots" / name).read_bytes()[:4] == b"\x89PNG"
+    if _has_radiance():  # the renderer's view, drawn with the other plots
+        assert (out / "plots" / "preview.png").read_bytes()[:4] == b"\x89PNG"
+        files = json.loads((out / "summary.json").read_text())["files"]["plots"]
+        assert "plots/preview.png" in files
     groups = sorted(p.name for p in (out / "raw").iterdir())
     # standard+background once per angle, the sample per angle and rotation
     assert len(groups) == 3 * (1 + 2)
@@ -58,6 +62,30 @@ def test_results_directory_has_every_file(small_run):
     rad = (out / "material.rad").read_text().splitlines()
     assert "void BRTDfunc gonio_rolled_brass" in rad
     assert (out / "gonio_rolled_brass.cal").is_file()
+
+
+def _has_radiance() -> bool:
+    from gonio.plots.preview import unavailable
+
+    return unavailable() is None
+
+
+def test_without_radiance_the_preview_is_skipped_with_a_note(tmp_path, monkeypatch):
+    """No pyradiance (its import fails) and no Radiance on PATH: every other plot is drawn,
+    the summary says in one line why plots/preview.png is not."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pyradiance", None)
+    monkeypatch.setenv("PATH", "")
+    plan = campaign.Plan(theta_i_deg=(30.0,), rotations_deg=(0.0,), plots=True, preset="ideal")
+    res = campaign.run(plan, tmp_path, workers=1, quiet=True)
+    notes = [w for w in res.summary["warnings"] if "preview.png" in w]
+    assert notes == ["plots/preview.png not drawn: pyradiance is not installed (pip install "
+                     "'gonio[radiance]') and no Radiance rtrace is on PATH"]  # fmt: skip
+    assert not (tmp_path / "plots" / "preview.png").exists()
+    assert (tmp_path / "plots" / "residuals.png").is_file()
+    assert "plots/preview.png" not in res.summary["files"]["plots"]
+    assert "warning: plots/preview.png not drawn" in campaign.summary_table(res.summary)
 
 
 def test_summary_content(small_run):
@@ -128,7 +156,8 @@ def test_worker_processes_give_the_same_campaign(tmp_path):
     for f in sorted((tmp_path / "one" / "raw").rglob("*.tif")):
         assert f.read_bytes() == (tmp_path / "two" / f.relative_to(tmp_path / "one")).read_bytes()
     assert sorted(p.name for p in (tmp_path / "two" / "plots").glob("*.png")) == [
-        "budget.png", "hemisphere.png", "incidence_plane.png", "residuals.png"
+        "budget.png", "hemisphere.png", "incidence_plane.png",
+        *(["preview.png"] if _has_radiance() else []), "residuals.png"
     ]  # fmt: skip
     again = campaign.run(plan, tmp_path / "two", resume=True, workers=2)
     assert again.summary["n_captures"]["resumed_groups"] == 12

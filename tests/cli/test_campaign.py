@@ -96,3 +96,81 @@ def test_negative_seed_names_the_option(capsys):
     with pytest.raises(SystemExit):
         main(["campaign", "--seed", "-1"])
     assert "argument --seed: -1 is outside [0, " in capsys.readouterr().err
+
+
+def _options_named(text: str) -> tuple[set[str], set[str]]:
+    """The options ``text`` names: ``gonio fit``'s (after "gonio fit") and the others."""
+    import re
+
+    fit = set(re.findall(r"gonio fit ((?:--[a-z][a-z-]*(?: \S+)?(?: or )?)+)", text))
+    fit_opts = {o for part in fit for o in re.findall(r"--[a-z][a-z-]*", part)}
+    rest = re.sub(r"gonio fit ((?:--[a-z][a-z-]*(?: \S+)?(?: or )?)+)", "", text)
+    return fit_opts, set(re.findall(r"--[a-z][a-z-]*", rest))
+
+
+@pytest.mark.parametrize("instrument", ["lbl", "cornell"])
+def test_the_campaigns_hints_name_its_own_options(instrument):
+    """The fit's notes (fixed=, n_starts=, init=) printed by a campaign, which has none of
+    those options: every option they name is the campaign's, or gonio fit's after its name."""
+    from gonio.cli import build_parser
+    from gonio.cli.campaign import campaign_text
+    from gonio.fit.core import _chi2_note, _identifiability_note
+    from gonio.hints import _HINT
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command").choices
+    mine = {s for a in sub["campaign"]._actions for s in a.option_strings}
+    fits = {s for a in sub["fit"]._actions for s in a.option_strings}
+    text = "warning: x" + _chi2_note(50.0, True) + _identifiability_note(False, ["k.rho"])
+    assert _HINT.search(text)  # the library's keyword hints
+    got = campaign_text(text, instrument)
+    assert not _HINT.search(got), got
+    fit_named, named = _options_named(got)
+    assert named and named <= mine and fit_named == {"--fixed", "--starts", "--init"} <= fits
+    assert ("--model" in named) == (instrument == "lbl")  # Cornell fits li_torrance only
+    assert "(k.rho unconstrained)" in got
+
+
+def test_an_unidentifiable_campaign_prints_hints_in_option_syntax(tmp_path, capsys):
+    rc = main(["campaign", "--model", "lambert+lambert", "--angles", "30", "--rotations", "0",
+               "--no-plots", "--preset", "ideal", "--out", str(tmp_path / "ll")])  # fmt: skip
+    text = capsys.readouterr().out
+    assert rc == 0 and "warning: not identifiable" in text
+    assert "fit a --model with fewer free parameters" in text
+    assert "fixed=" not in text and "n_starts=" not in text and "init=" not in text
+
+
+def test_a_cornell_campaign_refuses_another_campaigns_folder_without_overwrite(
+    tmp_path, capsys, monkeypatch
+):
+    """As the LBL campaign: a re-run of the same settings replaces the results, one of other
+    settings (another material here) needs overwrite, and a folder of results without a
+    plan.json too; the command line passes --overwrite on."""
+    from gonio.campaign import cornell
+
+    out = tmp_path / "c"
+    small = dict(plan="incidence", plan_kw={"theta_i_deg": (30.0,)}, max_geometries=8,
+                 fit=False, budget=False, effects=None, noise=False, out=out)  # fmt: skip
+    cornell.run_cornell_campaign("laser_paper", **small)
+    cornell.run_cornell_campaign("laser_paper", **small)  # the same settings: replaced
+    with pytest.raises(ValueError, match="holds the results of another campaign") as exc:
+        cornell.run_cornell_campaign("garnet_red_paint", **small)
+    assert "material: 'laser_paper' vs 'garnet_red_paint'" in str(exc.value)
+    assert "--overwrite" in str(exc.value)
+    assert json.loads((out / "plan.json").read_text())["material"] == "laser_paper"
+    assert (out / "samples.csv").is_file()  # nothing of the refused run's
+    cornell.run_cornell_campaign("garnet_red_paint", **small, overwrite=True)
+    assert json.loads((out / "plan.json").read_text())["material"] == "garnet_red_paint"
+    (out / "plan.json").unlink()
+    with pytest.raises(ValueError, match=r"without a plan\.json"):
+        cornell.run_cornell_campaign("garnet_red_paint", **small)
+    # the command line: refused without --overwrite (exit 2), passed on with it
+    base = ["campaign", "--instrument", "cornell", "--quiet", "--out", str(out)]
+    assert main(base) == 2 and "--overwrite" in capsys.readouterr().err
+    seen = {}
+
+    def fake(material, **kw):
+        seen.update(kw)
+        return {"converged": True}
+
+    monkeypatch.setattr(cornell, "run_cornell_campaign", fake)
+    assert main([*base, "--overwrite"]) == 0 and seen["overwrite"] is True
