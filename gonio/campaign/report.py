@@ -7,6 +7,7 @@ The summary is the one place where the simulator's truth and the campaign's resu
 from __future__ import annotations
 
 import math
+import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,12 +73,20 @@ def draw_preview(
 ) -> None:  # fmt: skip
     """``plots/preview.png``: the truth and the fit rendered by Radiance on a sphere, the fit
     from the material written as ``material.rad`` (:func:`radiance`), and their difference
-    (:func:`gonio.plots.preview.plot_preview`)."""
+    (:func:`gonio.plots.preview.plot_preview`). A failure of the renderer (a Radiance
+    program that exits with an error, a material it cannot read) costs the preview only:
+    the campaign's measured results are written, and the reason is printed on stderr."""
+    import sys
+
     from gonio.plots.preview import plot_preview
 
-    plot_preview(truth, result.model, folder / f"{name}.png", title=title,
-                 material_class=str(info.get("class") or "dielectric"),
-                 fit_material=radiance(plan, info, result))  # fmt: skip
+    try:
+        plot_preview(truth, result.model, folder / f"{name}.png", title=title,
+                     material_class=str(info.get("class") or "dielectric"),
+                     fit_material=radiance(plan, info, result))  # fmt: skip
+    except (OSError, RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
+        print(f"warning: plots/{name}.png not drawn: {type(exc).__name__}: {exc}",
+              file=sys.stderr)  # fmt: skip
 
 
 def add_budget(summary: dict[str, Any], budget: Any) -> None:

@@ -113,3 +113,27 @@ def test_without_pyradiance_the_preview_is_skipped_with_a_note(monkeypatch):
     assert why is not None and "pip install 'gonio[radiance]'" in why
     truth = materials.get("rolled_brass")
     assert preview.preview_notes(truth, truth, "metal") == [why]
+
+
+def test_a_renderer_failure_costs_the_preview_only(tmp_path, monkeypatch, capsys):
+    """A Radiance program that fails inside the plot job must not fail the campaign after
+    its measurement: the preview is left out and the reason printed."""
+    import subprocess
+
+    import gonio.plots.preview as pv
+    from gonio import materials
+    from gonio.campaign import Plan
+    from gonio.campaign.report import draw_preview
+
+    def broken(*a, **k):
+        raise subprocess.CalledProcessError(1, ["rtrace"], stderr="rtrace: fatal")
+
+    monkeypatch.setattr(pv, "plot_preview", broken)
+    truth = materials.get("rolled_brass")
+
+    from types import SimpleNamespace
+
+    result = SimpleNamespace(model=truth, params=dict(truth.params))
+    draw_preview("preview", truth, result, Plan(), {"class": "metal"}, tmp_path, "t")
+    assert not (tmp_path / "preview.png").exists()
+    assert "plots/preview.png not drawn: CalledProcessError" in capsys.readouterr().err
