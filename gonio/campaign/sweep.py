@@ -687,6 +687,17 @@ def _run_inprocess(tasks, root, fn, progress, raw):
         yield res
 
 
+def _pool_worker(parent: int) -> None:
+    """A sweep worker ends with the process that started it
+    (:func:`gonio.campaign.executor.die_with_parent`). Without it, a parent ended by a
+    signal it does not handle (``kill`` of a script that calls :func:`run_sweep`) left its
+    workers waiting forever on the pool's queue, re-parented to init: two were found
+    46 minutes after such a kill."""
+    from gonio.campaign.executor import die_with_parent
+
+    die_with_parent(parent)
+
+
 def _run_process(tasks, root, fn, workers, retries, progress, raw):
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -695,7 +706,8 @@ def _run_process(tasks, root, fn, workers, retries, progress, raw):
     attempts = 0
     while pending:
         broken = False
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=workers, initializer=_pool_worker,
+                                 initargs=(os.getpid(),)) as pool:  # fmt: skip
             futs = {
                 pool.submit(_run_task_entry, t, root, fn, raw): tid for tid, t in pending.items()
             }

@@ -591,3 +591,57 @@ def test_campaign_sweep_keeps_no_raw_frames_unless_asked(tmp_path):
     assert strip == [{k: v for k, v in r.items() if k != "wall_s"} for r in b.rows]
     with pytest.raises(ValueError, match="raw must be one of keep, compressed, none"):
         sweep.run_sweep(spec, tmp_path / "d", raw="all")
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from gonio.campaign.sweep import register_task, run_sweep, spec_from_dict
+
+def sleepy(task, out_dir):
+    (out_dir.parent.parent / f"pid-{os.getpid()}").write_text("")
+    time.sleep(60)
+    return {"x": 1.0}
+
+register_task("sleepy_orphan", sleepy, metric="x")
+spec = spec_from_dict({"name": "o", "task": "sleepy_orphan", "materials": ["-"],
+                       "seeds": [0, 1, 2, 3]})
+run_sweep(spec, sys.argv[1], executor="process", workers=2, plot=False)
+"""
+
+
+def test_process_workers_end_with_a_killed_parent(tmp_path):
+    """A script calling run_sweep killed by a signal it does not handle: its workers end
+    too (they were left waiting on the pool's queue forever, re-parented to init)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "orphan.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    root = tmp_path / "root"
+    proc = subprocess.Popen([sys.executable, str(script), str(root)], cwd=tmp_path)
+    try:
+        t0 = time.monotonic()
+        while len(list(root.glob("pid-*"))) < 2 and time.monotonic() - t0 < 60:
+            time.sleep(0.1)
+        pids = [int(p.name[4:]) for p in root.glob("pid-*")]
+        assert len(pids) == 2, "the workers did not start"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().split()[2] != "Z"
+        except FileNotFoundError:
+            return False
+
+    t0 = time.monotonic()
+    while any(alive(p) for p in pids) and time.monotonic() - t0 < 10:
+        time.sleep(0.1)
+    left = [p for p in pids if alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their parent"
