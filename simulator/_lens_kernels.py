@@ -20,7 +20,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["kb_inverse"]
+__all__ = ["KB_INVERSE_SIGNATURE", "kb_inverse"]
+
+#: The argument types with which a campaign calls :func:`kb_inverse` (see
+#: :data:`gonio.simulator._kernels.CAMPAIGN_SIGNATURES`).
+KB_INVERSE_SIGNATURE = "(f8[::1], f8, f8, f8, f8, f8, f8[::1])"
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")

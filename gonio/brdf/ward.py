@@ -38,7 +38,14 @@ from gonio.brdf._lobes import half_vector_albedo, half_vector_sum, refine_nodes
 from gonio.brdf.base import BRDF, Param, register
 from gonio.geometry import cosine_hemisphere_pdf, square_to_hemisphere
 
-__all__ = ["Ward", "WardApprox", "half_vector_pdf", "kernel", "sample_half_vector"]
+__all__ = [
+    "KERNEL_MODELS",
+    "Ward",
+    "WardApprox",
+    "half_vector_pdf",
+    "kernel",
+    "sample_half_vector",
+]
 
 _WARD_PARAMS = (
     Param("rho_d", 0.1, 0.0, 1.0, "1", "diffuse reflectance"),
@@ -74,6 +81,10 @@ _PRE_MODES: dict[str, int] = {
     "ward_duer": 3,  # gonio.brdf.ward_gmd
     "ward_gmd": 4,  # gonio.brdf.ward_gmd
 }
+
+
+#: the models evaluated by the kernels of :func:`kernel`
+KERNEL_MODELS = frozenset(_PRE_MODES)
 
 
 def _k_pre(wi, wo, e_out, s_out, ks, ax2, ay2, mode):  # pragma: no cover - numba
