@@ -95,6 +95,7 @@ def run(
     truth: Any = None,
     workers: int | None = None,
     overwrite: bool = False,
+    calibration_cache: bool = True,
 ) -> CampaignResult:
     """Run a campaign and (if ``out`` is given) write its results directory.
 
@@ -124,6 +125,11 @@ def run(
         depend on it: every capture draws from its own seed (:func:`capture_seed`).
     overwrite : bool
         Replace the results of another plan found in ``out`` (else refused).
+    calibration_cache : bool
+        Read the laboratory's calibration of a realistic simulated instrument from the
+        calibration cache when this instrument was calibrated before, and keep a made one
+        there (:mod:`gonio.campaign.calcache`; the summary's ``calibration.cache`` records
+        its key). False: made anew, nothing kept.
 
     Returns
     -------
@@ -131,6 +137,7 @@ def run(
     """
     t_start = time.perf_counter()  # 1. prepare: every input checked, then the folder opened
     setup = _prepare(plan, out, resume, truth, instrument, workers)
+    setup.calibration_cache = {} if calibration_cache else None
     with results.locked(setup.out):
         if setup.out is not None:
             results.check_out(setup.out, setup.plan, resume, truth, overwrite)
@@ -233,6 +240,7 @@ class _Setup:
     workers: int
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
     t_calibration: float | None = None  # seconds to make (or read) it
+    calibration_cache: dict | None = None  # a made calibration kept (calcache): its record
     warnings: list[str] = field(default_factory=list)  # what the plan will not determine
 
     @property
@@ -267,12 +275,16 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any:
+def _laboratory(
+    plan: Plan, inst: Any, outp: Path | None, ex: Any = None, cache: dict | None = None
+) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
     jobs run by the executor ``ex``) and copied to ``OUT/calibration``; None for the ideal
-    instrument, whose design is its truth."""
+    instrument, whose design is its truth. With ``cache`` (a dict, given the key under
+    ``"key"``) a calibration made before for the same instrument is read from
+    :mod:`gonio.campaign.calcache`, and a made one kept there."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
@@ -282,16 +294,37 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any
         return lab
     if not _calibrated(plan, inst):
         return None
-    from gonio.campaign.calibrate import laboratory_calibration, specification
+    from gonio.campaign import calcache
+    from gonio.campaign.calibrate import _key, laboratory_calibration, specification
 
     sim = inst.inst
-    lab = laboratory_calibration(
-        sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
-        certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=ex and ex.parallel, start=ex and ex.start,
-    )  # fmt: skip
+    folder = None if outp is None else outp / "calibration"
+    certificate, spec = sim.certificate(), specification(plan.preset)
+    lab = None
+    if cache is not None:  # kept for the next campaign of this instrument (calcache)
+        plan_fields = {k: getattr(plan, k) for k in _INSTRUMENT_FIELDS}
+        key, made_of = calcache.calibration_key(f"{_key(sim)}/eq3/0", {
+            "nominal_mirror": sim.mirror.to_dict(), "certificate": certificate.to_dict(),
+            "specification": spec, "plan": plan_fields,
+        })  # fmt: skip
+        lab = calcache.load(key, made_of)
+        cache["key"] = key[:20]  # (not whether it was found: the summary stays the same)
+    if lab is None:
+        lab = laboratory_calibration(
+            sim, sim.mirror.to_dict(), folder=folder, certificate=certificate,
+            specification=spec, parallel=ex and ex.parallel, start=ex and ex.start,
+        )  # fmt: skip
+        if cache is not None:
+            calcache.store(key, made_of, lab)
+    elif folder is not None:
+        lab.write(folder)
     _warm(lab, sim)
     return lab
+
+
+#: the plan's fields that make the simulated instrument (:class:`_SimulatedLBL`), in the
+#: key of a cached calibration besides the instrument's own description
+_INSTRUMENT_FIELDS = ("preset", "instrument_seed", "noise", "d_over_r", "mirror")
 
 
 def _calibrated(plan: Plan, inst: Any) -> bool:
@@ -308,7 +341,7 @@ def _calibration(ex: CampaignExecutor, setup: _Setup, quiet: bool, stream: Any) 
         warm = partial(_warm_instrument, setup)
         bar = Progress(1, "warm-up + calibration", quiet=quiet, stream=stream, min_time=0.0)
         with bar, ex.stage("calibration"), ex.inheriting(warm, "warm_up"):
-            setup.lab = _laboratory(plan, inst, setup.out, ex)
+            setup.lab = _laboratory(plan, inst, setup.out, ex, setup.calibration_cache)
     elif setup.t_calibration is not None:
         ex.timings["calibration"] = setup.t_calibration
 
@@ -757,6 +790,8 @@ def _report(
     if budget is not None:
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info
+    if setup.lab is not None and setup.calibration_cache:  # (read from the cache or kept)
+        summary["calibration"] = {**summary["calibration"], "cache": setup.calibration_cache}
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
         if budget is not None:
