@@ -43,12 +43,14 @@ def _dg(t, k1, k2, k3, k4):  # pragma: no cover - compiled
 def kb_inverse(r, k1, k2, k3, k4, hi_t, out):  # pragma: no cover - compiled
     """θ with ``g(θ) = r`` for every element of the flat array ``r`` into ``out``."""
     n = r.size
-    lo = np.zeros(n)
-    hi = np.full(n, hi_t)
+    lo = np.empty(n)  # the brackets, filled below (np.zeros and np.full: 0.3 s more to compile)
+    hi = np.empty(n)
     t = out
     for i in range(n):  # np.clip(r, 0, hi_t)
         x = r[i]
         t[i] = hi_t if x > hi_t else (0.0 if x < 0.0 else x)
+        lo[i] = 0.0
+        hi[i] = hi_t
     for _ in range(60):
         done = True
         for i in range(n):

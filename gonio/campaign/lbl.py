@@ -349,8 +349,9 @@ def _calibration(ex: CampaignExecutor, setup: _Setup, quiet: bool, stream: Any) 
 def _kernel_groups(setup: _Setup) -> list[list[tuple[Callable, Callable[[], Any]]]]:
     """The compiled kernels a simulated instrument's campaign loads, in two groups that
     share no compiled callee and take about as long to compile (processor seconds measured
-    one by one on an empty cache: the noise kernels 2.4, Ward's 0.5; the scene's 2.0, the
-    lens's 0.7), for :meth:`~gonio.campaign.executor.CampaignExecutor.compile_ahead`."""
+    one by one on an empty cache, numba's contexts made: the noise kernels 2.4; the
+    scene's 1.6, the lens's 0.6, Ward's 0.5), for
+    :meth:`~gonio.campaign.executor.CampaignExecutor.compile_ahead`."""
     plan = setup.plan
     if not isinstance(setup.instrument, _SimulatedLBL) or os.environ.get("GONIO_NO_NUMBA"):
         return []
@@ -364,14 +365,14 @@ def _kernel_groups(setup: _Setup) -> list[list[tuple[Callable, Callable[[], Any]
     realistic = _calibrated(plan, setup.instrument)
     noise = [load("noise_u16")] if plan.noise > 0 else []
     noise += [load("noise_float"), load("digitise_linear")] if realistic else []
-    if plan.model in ward.KERNEL_MODELS:
-        noise += [(ward._k_pre, partial(ward.kernel, "pre")),
-                  (ward._k_post, partial(ward.kernel, "post"))]  # fmt: skip
     scene = [load("ward_exponent"), load("plan_scene"), load("compose_float_runs")]
     if realistic:
         kb = _lens_kernels.kb_inverse
         kb_types = _kernels.argument_types(_lens_kernels.KB_INVERSE_SIGNATURE)
         scene.append((kb, partial(kb.compile, kb_types)))
+    if plan.model in ward.KERNEL_MODELS:
+        scene += [(ward._k_pre, partial(ward.kernel, "pre")),
+                  (ward._k_post, partial(ward.kernel, "post"))]  # fmt: skip
     return [scene, noise]
 
 
