@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 import platform
+import shutil
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -117,9 +118,15 @@ def load(key: str, made_of: Mapping[str, Any]) -> Any:
         return None
 
 
+#: entries kept (the oldest beyond it removed when one is stored; each about 0.15 MB)
+MAX_ENTRIES = 32
+
+
 def store(key: str, made_of: Mapping[str, Any], lab: Any) -> bool:
     """Keep ``lab`` under ``key`` (each file written atomically, the key last, so an entry
-    without its key file is never read); False when the folder cannot be written."""
+    without its key file is never read), then remove the oldest entries beyond
+    :data:`MAX_ENTRIES` (each code change makes new keys); False when the folder cannot be
+    written."""
     from gonio.io.atomic import atomic_write_bytes
 
     entry = cache_dir() / key
@@ -127,6 +134,19 @@ def store(key: str, made_of: Mapping[str, Any], lab: Any) -> bool:
         lab.write(entry)
         text = json.dumps(made_of, sort_keys=True, indent=1)
         atomic_write_bytes(entry / KEY_FILE, text.encode(), durable=False)
+        _prune(cache_dir(), keep=entry)
     except OSError:
         return False
     return True
+
+
+def _prune(root: Path, keep: Path) -> None:
+    def age(p: Path) -> float:
+        try:
+            return p.stat().st_mtime
+        except OSError:  # (removed meanwhile by another campaign)
+            return 0.0
+
+    entries = sorted((p for p in root.iterdir() if p.is_dir() and p != keep), key=age)
+    for old in entries[: max(0, len(entries) + 1 - MAX_ENTRIES)]:
+        shutil.rmtree(old, ignore_errors=True)

@@ -4,6 +4,7 @@ instrument, never by another's."""
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -90,3 +91,16 @@ def test_no_cache_keeps_nothing_and_the_summary_has_no_key(cache):
     res = campaign.run(campaign.Plan(**SMALL, seed=4), workers=1, calibration_cache=False)
     assert not cache.exists()
     assert "cache" not in res.summary["calibration"]
+
+
+def test_the_oldest_entries_beyond_the_limit_are_removed(cache, monkeypatch):
+    from gonio.calibration.laboratory import LabCalibration
+
+    monkeypatch.setattr(calcache, "MAX_ENTRIES", 3)
+    keys = []
+    for k in range(5):
+        key, made_of = calcache.calibration_key(f"inst{k}/eq3/0", {})
+        assert calcache.store(key, made_of, LabCalibration(info={"k": k}))
+        os.utime(cache / key, (1000.0 + k, 1000.0 + k))  # stored one after the other
+        keys.append(key)
+    assert sorted(p.name for p in cache.iterdir()) == sorted(keys[2:])
