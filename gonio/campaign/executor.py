@@ -432,27 +432,11 @@ class CampaignExecutor:
         cold = [g for g in groups if not all(_in_numba_cache(fn) for fn, _ in g)]
         if len(cold) < 2:
             return
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
         jobs = [functools.partial(_compile, g) for g in cold[1:]]
         with self.stage("compile"):
             _numba_contexts()  # made once, here: the forked processes inherit them
-            self._limit_blas()
-            pool = ProcessPoolExecutor(
-                min(self.workers - 1, len(jobs)), mp_context=mp.get_context("fork"),
-                initializer=_init_jobs, initargs=(jobs, os.getpid()),
-            )  # fmt: skip
-            ok = False
-            try:
-                with forking():
-                    futures = [pool.submit(_job, k) for k in range(len(jobs))]
-                _compile(cold[0])
-                for f in futures:
-                    f.result()
-                ok = True
-            finally:
-                _shutdown(pool, stop=not ok)
+            here = functools.partial(_compile, cold[0])
+            self._forked(jobs, min(self.workers - 1, len(jobs)), here)
 
     # ------------------------------------------------------------------ pool
     def map(
@@ -531,19 +515,24 @@ class CampaignExecutor:
         if self.workers == 1 or len(jobs) <= 1:
             self._limit_blas()  # (the same sums as in forked processes)
             return [job() for job in jobs]
+        return self._forked(jobs, min(self.workers, len(jobs)), _preload)
+
+    def _forked(self, jobs: list[Callable[[], Any]], n: int, here: Callable[[], Any]) -> list:
+        """``jobs`` on ``n`` processes forked for them while ``here()`` runs in this
+        process; their results in order (an error: the others stopped, then raised)."""
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
         self._limit_blas()
         pool = ProcessPoolExecutor(
-            min(self.workers, len(jobs)), mp_context=mp.get_context("fork"),
-            initializer=_init_jobs, initargs=(jobs, os.getpid()),
+            n, mp_context=mp.get_context("fork"), initializer=_init_jobs,
+            initargs=(jobs, os.getpid()),
         )  # fmt: skip
         ok = False
         try:
             with forking():
                 futures = [pool.submit(_job, k) for k in range(len(jobs))]
-            _preload()
+            here()
             out = [f.result() for f in futures]
             ok = True
             return out
