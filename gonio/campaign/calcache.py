@@ -70,24 +70,28 @@ def code_digest() -> str:
     return h.hexdigest()
 
 
-def _versions() -> dict[str, str]:
-    import cv2
-    import numpy
-    import scipy
+def _versions() -> dict[str, str | None]:
+    """The libraries' versions, from their installed metadata (importing OpenCV or numba
+    only for its version would cost a campaign that reads its calibration 0.1-0.4 s)."""
+    from importlib import metadata
 
-    try:
-        import numba
+    def installed(*names: str) -> str | None:
+        for name in names:
+            try:
+                return f"{name} {metadata.version(name)}"
+            except metadata.PackageNotFoundError:
+                continue
+        return None
 
-        nb = numba.__version__
-    except ImportError:  # pragma: no cover - numba is a declared dependency
-        nb = None
+    opencv = ("opencv-contrib-python-headless", "opencv-python-headless",
+              "opencv-contrib-python", "opencv-python")  # fmt: skip
     return {
         "python": sys.version.split()[0],
         "machine": platform.machine(),
-        "numpy": numpy.__version__,
-        "scipy": scipy.__version__,
-        "opencv": cv2.__version__,
-        "numba": nb,
+        "numpy": installed("numpy"),
+        "scipy": installed("scipy"),
+        "opencv": installed(*opencv),
+        "numba": installed("numba"),
     }
 
 
