@@ -68,7 +68,9 @@ from numba import njit
 
 __all__ = [
     "BLOCK",
+    "CAMPAIGN_SIGNATURES",
     "adc_charge",
+    "argument_types",
     "bloom_columns",
     "compose_float",
     "compose_float_runs",
@@ -87,6 +89,33 @@ __all__ = [
     "ward_cone",
     "ward_exponent",
 ]
+
+
+#: The argument types (numba's notation: ``f8[::1]`` a C-ordered float64 vector) with which an
+#: LBL campaign calls the kernels it loads: what
+#: :meth:`gonio.campaign.executor.CampaignExecutor.compile_ahead` compiles on an empty cache
+#: (a call with other types compiles its own specialisation on first use, as before).
+CAMPAIGN_SIGNATURES: dict[str, str] = {
+    "ward_exponent": "(f8[::1], f8[::1], f8[::1], f8[::1], f8[::1], b1, f8, f8, f8, f8, f8, f8, "
+    "f8, f8, f8, f8, b1, f8[::1], u1[::1])",
+    "plan_scene": "(f8[::1], f8[::1], f8, i8[::1], f8[::1], u1[::1], f8[::1], f8[::1], f8, f8, "
+    "f8[::1], f8, f8, i8[::1], i8[::1])",
+    "compose_float_runs": "(f8[::1], f8[::1], f8, f8, i8[::1], i8[::1], f8[::1], u1[::1], "
+    "f8[::1], f8[::1], f8, f8, f8[::1])",
+    "noise_u16": "(f8[::1], u8[::1], f8, f8, f8, f8, f8, f8, u2[::1])",
+    "noise_float": "(f8[::1], u8[::1], f8, f8, f8[::1])",
+    "digitise_linear": "(f8[::1], f8, f8, f8, f8, u2[::1])",
+}
+
+
+def argument_types(signature: str) -> tuple:
+    """A signature of :data:`CAMPAIGN_SIGNATURES` as the tuple of numba types a call's
+    arguments have: what a kernel's ``compile`` must be given, since numba's cache keys an
+    entry by the signature as given (an entry compiled from the string is not found by a
+    call, which compiles it again)."""
+    from numba.core.sigutils import normalize_signature
+
+    return normalize_signature(signature)[0]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

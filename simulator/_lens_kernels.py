@@ -20,7 +20,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["kb_inverse"]
+__all__ = ["KB_INVERSE_SIGNATURE", "kb_inverse"]
+
+#: The argument types with which a campaign calls :func:`kb_inverse` (see
+#: :data:`gonio.simulator._kernels.CAMPAIGN_SIGNATURES`).
+KB_INVERSE_SIGNATURE = "(f8[::1], f8, f8, f8, f8, f8, f8[::1])"
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -39,12 +43,14 @@ def _dg(t, k1, k2, k3, k4):  # pragma: no cover - compiled
 def kb_inverse(r, k1, k2, k3, k4, hi_t, out):  # pragma: no cover - compiled
     """θ with ``g(θ) = r`` for every element of the flat array ``r`` into ``out``."""
     n = r.size
-    lo = np.zeros(n)
-    hi = np.full(n, hi_t)
+    lo = np.empty(n)  # the brackets, filled below (np.zeros and np.full: 0.3 s more to compile)
+    hi = np.empty(n)
     t = out
     for i in range(n):  # np.clip(r, 0, hi_t)
         x = r[i]
         t[i] = hi_t if x > hi_t else (0.0 if x < 0.0 else x)
+        lo[i] = 0.0
+        hi[i] = hi_t
     for _ in range(60):
         done = True
         for i in range(n):

@@ -32,6 +32,16 @@ def write_mutated(tmp_path_factory):
     return write
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _calibration_cache(tmp_path_factory):
+    """Campaigns keep their calibrations (gonio.campaign.calcache) in the session's folder,
+    never in the user's cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("GONIO_CACHE_DIR", str(tmp_path_factory.mktemp("gonio-cache")))
+    yield
+    mp.undo()
+
+
 def pytest_addoption(parser):
     parser.addoption(
         "--device-port",

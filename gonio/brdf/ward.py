@@ -38,7 +38,14 @@ from gonio.brdf._lobes import half_vector_albedo, half_vector_sum, refine_nodes
 from gonio.brdf.base import BRDF, Param, register
 from gonio.geometry import cosine_hemisphere_pdf, square_to_hemisphere
 
-__all__ = ["Ward", "WardApprox", "half_vector_pdf", "kernel", "sample_half_vector"]
+__all__ = [
+    "KERNEL_MODELS",
+    "Ward",
+    "WardApprox",
+    "half_vector_pdf",
+    "kernel",
+    "sample_half_vector",
+]
 
 _WARD_PARAMS = (
     Param("rho_d", 0.1, 0.0, 1.0, "1", "diffuse reflectance"),
@@ -74,6 +81,10 @@ _PRE_MODES: dict[str, int] = {
     "ward_duer": 3,  # gonio.brdf.ward_gmd
     "ward_gmd": 4,  # gonio.brdf.ward_gmd
 }
+
+
+#: the models evaluated by the kernels of :func:`kernel`
+KERNEL_MODELS = frozenset(_PRE_MODES)
 
 
 def _k_pre(wi, wo, e_out, s_out, ks, ax2, ay2, mode):  # pragma: no cover - numba
@@ -126,7 +137,24 @@ def _k_post(e, s_out, kd):  # pragma: no cover - numba
         s_out[k] = kd + sk * e[k] if sk >= 0.0 else 0.0
 
 
+def _pre_signatures(t: Any) -> list[tuple]:
+    # directions read-only, C-ordered (a writable array converts; Ward._fast passes others
+    # as C copies): one specialisation instead of one per layout and write flag
+    d = t.Array(t.float64, 2, "C", readonly=True)
+    v = t.Array(t.float64, 1, "C")
+    return [(d, d, v, v, t.float64, t.float64, t.float64, t.int64)]
+
+
+def _post_signatures(t: Any) -> list[tuple]:
+    v = t.Array(t.float64, 1, "C")
+    return [(v, v, t.float64)]
+
+
 _KERNEL_SOURCES: dict[str, Callable] = {"pre": _k_pre, "post": _k_post}
+_SIGNATURES: dict[str, Callable[[Any], list[tuple]]] = {
+    "pre": _pre_signatures,
+    "post": _post_signatures,
+}
 _KERNELS: dict[str, Any] = {}
 _SCRATCH = threading.local()
 
@@ -147,14 +175,16 @@ def kernel(name: str) -> Any:
     ``"ward_approx"``, ``"ward_neumann"``, ``"ward_duer"``, ``"ward_gmd"``), which all give the
     one ``pre`` kernel; it takes
     the model's mode, ``_PRE_MODES[name]``, as its last argument. Compilation is lazy:
-    importing :mod:`gonio.brdf` does not import numba.
+    importing :mod:`gonio.brdf` does not import numba. Each kernel has one signature
+    (C-ordered float64 arrays; ``pre``'s directions may be read-only), compiled or loaded
+    from numba's cache on the first call of this function.
     """
     if is_interpreted():  # (numpy paths: see gonio.brdf._jit.interpreted)
         return None
     key = "pre" if name in _PRE_MODES else name
     if key in _KERNELS:
         return _KERNELS[key]
-    k = njit_or_none(_KERNEL_SOURCES[key]) if key in _KERNEL_SOURCES else None
+    k = njit_or_none(_KERNEL_SOURCES[key], _SIGNATURES[key]) if key in _KERNEL_SOURCES else None
     _KERNELS[key] = k
     return k
 
@@ -288,6 +318,9 @@ class Ward(BRDF):
             wi = np.broadcast_to(wi, wo.shape)
         else:
             return None
+        # the kernel's one layout (a copy of a strided or broadcast array: the same values)
+        wi = np.ascontiguousarray(wi)
+        wo = np.ascontiguousarray(wo)
         k = kernel("pre") if self._KERNEL else None
         post = kernel("post")
         if k is None or post is None:

@@ -30,6 +30,10 @@ needs, what it makes, what kind of work it is) and a campaign's jobs run by
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
   forked first so that it loads matplotlib on the idle core while the campaign prepares.
+* **Kernels compiled ahead** (:meth:`CampaignExecutor.compile_ahead`): on an empty numba
+  cache (the first campaign after an install) the kernels a campaign will load are
+  compiled in groups on forked processes at once, this process compiling one group, into
+  numba's cache, from which every process then loads them.
 * **Stage timings** (:meth:`CampaignExecutor.stage`): seconds per named stage (without the
   stages timed inside it), reported in the summary.
 * **Child lifetime**: no process outlives its campaign. SIGTERM (``kill PID``,
@@ -222,6 +226,33 @@ def _then_task() -> Any:
     return _STATE[_THEN]()
 
 
+def _in_numba_cache(fn: Callable) -> bool:
+    """Whether numba's cache holds compiled code of ``fn`` for its current source (an index
+    file of this numba version and the source file's stamp); True when that cannot be told
+    (the kernel is then left to its first call)."""
+    try:
+        from numba.core.caching import FunctionCache
+
+        return bool(FunctionCache(getattr(fn, "py_func", fn))._cache_file._load_index())
+    except Exception:  # (numba's private layout changed, or no numba)
+        return True
+
+
+def _numba_contexts() -> None:
+    """numba's typing and target contexts made (0.37 s of processor time, which a process
+    pays at its first compile: paid once when made before the compiling processes fork)."""
+    with contextlib.suppress(Exception):  # (no numba, or its private layout changed)
+        from numba.core.registry import cpu_target
+
+        cpu_target.typing_context.refresh()
+        cpu_target.target_context.refresh()
+
+
+def _compile(group: Sequence[tuple[Callable, Callable[[], Any]]]) -> None:
+    for _, load in group:
+        load()
+
+
 def _pool_task(fn: Callable[..., Any], args: tuple) -> tuple[Any, float]:
     """A task in a pool process: its result once its writes are on their way to the disk."""
     try:
@@ -382,6 +413,31 @@ class CampaignExecutor:
         """Seconds since the executor was made."""
         return time.perf_counter() - self.t_start
 
+    # ------------------------------------------------------------------ kernels
+    def compile_ahead(self, groups: Sequence[Sequence[tuple[Callable, Callable[[], Any]]]]) -> None:
+        """On an empty numba cache, the kernels of ``groups`` compiled now, the groups in
+        parallel: one here, the others on processes forked for them (up to
+        :attr:`workers` at once), timed as stage ``"compile"``; the compiled code goes to
+        numba's cache (``cache=True``), from which this process and its children load a
+        kernel at its first call. A group is a list of ``(function, load)``: ``function``
+        (plain Python, or numba's dispatcher of it) names the cache entry that tells whether
+        the kernel was compiled before, ``load()`` compiles it (or loads it from the cache).
+
+        Nothing happens with one worker, or when fewer than two groups have a kernel that is
+        not in the cache: the kernels are then compiled, or loaded, at their first call as
+        before. Groups should share no compiled callee (each would write its cache entry).
+        """
+        if self.workers == 1:
+            return
+        cold = [g for g in groups if not all(_in_numba_cache(fn) for fn, _ in g)]
+        if len(cold) < 2:
+            return
+        jobs = [functools.partial(_compile, g) for g in cold[1:]]
+        with self.stage("compile"):
+            _numba_contexts()  # made once, here: the forked processes inherit them
+            here = functools.partial(_compile, cold[0])
+            self._forked(jobs, min(self.workers - 1, len(jobs)), here)
+
     # ------------------------------------------------------------------ pool
     def map(
         self,
@@ -459,19 +515,24 @@ class CampaignExecutor:
         if self.workers == 1 or len(jobs) <= 1:
             self._limit_blas()  # (the same sums as in forked processes)
             return [job() for job in jobs]
+        return self._forked(jobs, min(self.workers, len(jobs)), _preload)
+
+    def _forked(self, jobs: list[Callable[[], Any]], n: int, here: Callable[[], Any]) -> list:
+        """``jobs`` on ``n`` processes forked for them while ``here()`` runs in this
+        process; their results in order (an error: the others stopped, then raised)."""
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
         self._limit_blas()
         pool = ProcessPoolExecutor(
-            min(self.workers, len(jobs)), mp_context=mp.get_context("fork"),
-            initializer=_init_jobs, initargs=(jobs, os.getpid()),
+            n, mp_context=mp.get_context("fork"), initializer=_init_jobs,
+            initargs=(jobs, os.getpid()),
         )  # fmt: skip
         ok = False
         try:
             with forking():
                 futures = [pool.submit(_job, k) for k in range(len(jobs))]
-            _preload()
+            here()
             out = [f.result() for f in futures]
             ok = True
             return out

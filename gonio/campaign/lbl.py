@@ -101,6 +101,7 @@ def run(
     truth: Any = None,
     workers: int | None = None,
     overwrite: bool = False,
+    calibration_cache: bool = True,
 ) -> CampaignResult:
     """Run a campaign and (if ``out`` is given) write its results directory.
 
@@ -130,6 +131,11 @@ def run(
         depend on it: every capture draws from its own seed (:func:`capture_seed`).
     overwrite : bool
         Replace the results of another plan found in ``out`` (else refused).
+    calibration_cache : bool
+        Read the laboratory's calibration of a realistic simulated instrument from the
+        calibration cache when this instrument was calibrated before, and keep a made one
+        there (:mod:`gonio.campaign.calcache`; the summary's ``calibration.cache`` records
+        its key). False: made anew, nothing kept.
 
     Returns
     -------
@@ -137,6 +143,7 @@ def run(
     """
     t_start = time.perf_counter()  # 1. prepare: every input checked, then the folder opened
     setup = _prepare(plan, out, resume, truth, instrument, workers)
+    setup.calibration_cache = {} if calibration_cache else None
     with results.locked(setup.out):
         if setup.out is not None:
             results.check_out(setup.out, setup.plan, resume, truth, overwrite)
@@ -162,6 +169,7 @@ def _stages(
     for w in () if quiet else setup.warnings:  # what the plan will not determine: said first
         print(f"warning: {w}", file=stream if stream is not None else sys.stderr, flush=True)
     with CampaignExecutor(setup.workers, plots=outp is not None and plan.plots) as ex:
+        ex.compile_ahead(_kernel_groups(setup))  # (an empty numba cache only)
         _calibration(ex, setup, quiet, stream)
         got = ex.pipeline(
             _jobs(setup, resume, quiet, stream), ex=ex, setup=setup, plan=plan,
@@ -240,6 +248,7 @@ class _Setup:
     workers: int
     lab: Any = None  # the laboratory's calibration (None: the nominal design)
     t_calibration: float | None = None  # seconds to make (or read) it
+    calibration_cache: dict | None = None  # a made calibration kept (calcache): its record
     warnings: list[str] = field(default_factory=list)  # what the plan will not determine
 
     @property
@@ -281,12 +290,16 @@ def _prepare(
     return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings)
 
 
-def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any:
+def _laboratory(
+    plan: Plan, inst: Any, outp: Path | None, ex: Any = None, cache: dict | None = None
+) -> Any:
     """The laboratory's calibration: the plan's calibration folder, else (a realistic
     simulated instrument) its calibration from calibration captures, made once per physical
     instrument (:func:`gonio.campaign.calibrate.laboratory_calibration`, its independent
     jobs run by the executor ``ex``) and copied to ``OUT/calibration``; None for the ideal
-    instrument, whose design is its truth."""
+    instrument, whose design is its truth. With ``cache`` (a dict, given the key under
+    ``"key"``) a calibration made before for the same instrument is read from
+    :mod:`gonio.campaign.calcache`, and a made one kept there."""
     if plan.calibration is not None:
         from gonio.calibration.laboratory import read_calibration
 
@@ -296,16 +309,37 @@ def _laboratory(plan: Plan, inst: Any, outp: Path | None, ex: Any = None) -> Any
         return lab
     if not _calibrated(plan, inst):
         return None
-    from gonio.campaign.calibrate import laboratory_calibration, specification
+    from gonio.campaign import calcache
+    from gonio.campaign.calibrate import _key, laboratory_calibration, specification
 
     sim = inst.inst
-    lab = laboratory_calibration(
-        sim, sim.mirror.to_dict(), folder=None if outp is None else outp / "calibration",
-        certificate=sim.certificate(), specification=specification(plan.preset),
-        parallel=ex and ex.parallel, start=ex and ex.start,
-    )  # fmt: skip
+    folder = None if outp is None else outp / "calibration"
+    certificate, spec = sim.certificate(), specification(plan.preset)
+    lab = None
+    if cache is not None:  # kept for the next campaign of this instrument (calcache)
+        plan_fields = {k: getattr(plan, k) for k in _INSTRUMENT_FIELDS}
+        key, made_of = calcache.calibration_key(f"{_key(sim)}/eq3/0", {
+            "nominal_mirror": sim.mirror.to_dict(), "certificate": certificate.to_dict(),
+            "specification": spec, "plan": plan_fields,
+        })  # fmt: skip
+        lab = calcache.load(key, made_of)
+        cache["key"] = key[:20]  # (not whether it was found: the summary stays the same)
+    if lab is None:
+        lab = laboratory_calibration(
+            sim, sim.mirror.to_dict(), folder=folder, certificate=certificate,
+            specification=spec, parallel=ex and ex.parallel, start=ex and ex.start,
+        )  # fmt: skip
+        if cache is not None:
+            calcache.store(key, made_of, lab)
+    elif folder is not None:
+        lab.write(folder)
     _warm(lab, sim)
     return lab
+
+
+#: the plan's fields that make the simulated instrument (:class:`_SimulatedLBL`), in the
+#: key of a cached calibration besides the instrument's own description
+_INSTRUMENT_FIELDS = ("preset", "instrument_seed", "noise", "d_over_r", "mirror")
 
 
 def _calibrated(plan: Plan, inst: Any) -> bool:
@@ -322,9 +356,39 @@ def _calibration(ex: CampaignExecutor, setup: _Setup, quiet: bool, stream: Any) 
         warm = partial(_warm_instrument, setup)
         bar = Progress(1, "warm-up + calibration", quiet=quiet, stream=stream, min_time=0.0)
         with bar, ex.stage("calibration"), ex.inheriting(warm, "warm_up"):
-            setup.lab = _laboratory(plan, inst, setup.out, ex)
+            setup.lab = _laboratory(plan, inst, setup.out, ex, setup.calibration_cache)
     elif setup.t_calibration is not None:
         ex.timings["calibration"] = setup.t_calibration
+
+
+def _kernel_groups(setup: _Setup) -> list[list[tuple[Callable, Callable[[], Any]]]]:
+    """The compiled kernels a simulated instrument's campaign loads, in two groups that
+    share no compiled callee and take about as long to compile (processor seconds measured
+    one by one on an empty cache, numba's contexts made: the noise kernels 2.4; the
+    scene's 1.6, the lens's 0.6, Ward's 0.5), for
+    :meth:`~gonio.campaign.executor.CampaignExecutor.compile_ahead`."""
+    plan = setup.plan
+    if not isinstance(setup.instrument, _SimulatedLBL) or os.environ.get("GONIO_NO_NUMBA"):
+        return []
+    from gonio.brdf import ward
+    from gonio.simulator import _kernels, _lens_kernels
+
+    def load(name: str) -> tuple[Callable, Callable[[], Any]]:
+        k = getattr(_kernels, name)
+        return k, partial(k.compile, _kernels.argument_types(_kernels.CAMPAIGN_SIGNATURES[name]))
+
+    realistic = _calibrated(plan, setup.instrument)
+    noise = [load("noise_u16")] if plan.noise > 0 else []
+    noise += [load("noise_float"), load("digitise_linear")] if realistic else []
+    scene = [load("ward_exponent"), load("plan_scene"), load("compose_float_runs")]
+    if realistic:
+        kb = _lens_kernels.kb_inverse
+        kb_types = _kernels.argument_types(_lens_kernels.KB_INVERSE_SIGNATURE)
+        scene.append((kb, partial(kb.compile, kb_types)))
+    if plan.model in ward.KERNEL_MODELS:
+        scene += [(ward._k_pre, partial(ward.kernel, "pre")),
+                  (ward._k_post, partial(ward.kernel, "post"))]  # fmt: skip
+    return [scene, noise]
 
 
 def _warm_instrument(setup: _Setup) -> None:
@@ -743,6 +807,8 @@ def _report(
     if budget is not None:
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info
+    if setup.lab is not None and setup.calibration_cache:  # (read from the cache or kept)
+        summary["calibration"] = {**summary["calibration"], "cache": setup.calibration_cache}
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
         if budget is not None:

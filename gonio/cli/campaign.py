@@ -154,6 +154,12 @@ def _instrument_options(group) -> None:
         help="a calibration folder (calibration.json) to reduce with (LBL)",
     )
     group.add_argument(
+        "--no-calibration-cache",
+        action="store_true",
+        help="calibrate anew, keep nothing (LBL; default: a calibration made before for this "
+        "instrument is read from $GONIO_CACHE_DIR, default ~/.cache/gonio)",
+    )
+    group.add_argument(
         "--no-debias",
         action="store_true",
         help="keep eq. 2's second-order ratio bias (LBL; see Plan.debias)",
@@ -446,7 +452,8 @@ def run(args) -> int:
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     check_outputs({"--calibration": args.calibration}, {"--out": out, "--json": args.json})
     res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers,
-                       overwrite=args.overwrite)  # fmt: skip
+                       overwrite=args.overwrite,
+                       calibration_cache=not args.no_calibration_cache)  # fmt: skip
     from gonio.campaign.raw import disk_usage, keep_raw
 
     keep_raw(res.out, args.raw)

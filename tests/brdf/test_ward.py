@@ -191,3 +191,24 @@ def test_interpreted_block_takes_the_numpy_path_and_keeps_the_kernels():
     np.testing.assert_allclose(slow, fast, rtol=1e-12)
     if kernel("pre") is not None:  # (numba installed: the kernel is back after the block)
         assert m._fast(wi, wo) is not None
+
+
+def test_one_kernel_signature_serves_every_layout() -> None:
+    # read-only, strided, Fortran-ordered, broadcast and many-dimensional directions all go
+    # through the kernel's one compiled signature (each layout compiled its own before,
+    # 0.23-0.26 s on an empty cache), with the values of plain C-ordered arrays
+    pre = ward_mod.kernel("pre")
+    if pre is None:
+        pytest.skip("numba not available")
+    m = brdf.create("ward", **BRASS)
+    wi, wo = _rand_dirs(60, 8), _rand_dirs(60, 9)
+    ref = m(wi, wo)
+    ro = wi.copy()
+    ro.flags.writeable = False
+    both = np.concatenate([wi, wo], axis=1)
+    np.testing.assert_array_equal(m(ro, wo), ref)
+    np.testing.assert_array_equal(m(both[:, :3], both[:, 3:]), ref)
+    np.testing.assert_array_equal(m(np.asfortranarray(wi), wo), ref)
+    np.testing.assert_array_equal(m(wi[0], wo), m(np.repeat(wi[:1], 60, axis=0), wo))
+    np.testing.assert_array_equal(m(wi.reshape(6, 10, 3), wo.reshape(6, 10, 3)).ravel(), ref)
+    assert len(pre.signatures) == 1 and len(ward_mod.kernel("post").signatures) == 1

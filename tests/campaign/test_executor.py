@@ -301,3 +301,53 @@ def test_inheriting_prepares_before_the_parallel_jobs_not_before_a_started_one()
         assert got == [1, 1] and again == [1] and _MARK == [1]
         assert lens == (1 if workers == 1 else 0)  # one worker: run here, when asked for
         assert ex.timings["prep"] >= 0.05 and ex.timings["outer"] + ex.timings["prep"] <= wall
+
+
+def test_compile_ahead_compiles_the_cold_groups_here_and_on_a_forked_process(tmp_path, monkeypatch):
+    def group(name):
+        def load():
+            (tmp_path / f"{name}.{os.getpid()}").touch()
+
+        return [(load, load)]
+
+    def loaded():
+        return sorted(p.name for p in tmp_path.iterdir())
+
+    cold = {"a", "b"}
+    monkeypatch.setattr(executor, "_in_numba_cache", lambda fn: fn.__name__ not in cold)
+
+    def groups():
+        a, b = group("a"), group("b")
+        a[0][0].__name__, b[0][0].__name__ = "a", "b"
+        return [a, b]
+
+    with executor.CampaignExecutor(2) as ex:
+        ex.compile_ahead(groups())
+    got = loaded()
+    assert [n.split(".")[0] for n in got] == ["a", "b"]
+    assert got[0] == f"a.{os.getpid()}" and got[1] != f"b.{os.getpid()}"  # b: a child's
+    assert "compile" in ex.timings
+    for p in tmp_path.iterdir():
+        p.unlink()
+    cold = {"a"}  # one cold group: left to the kernels' first calls
+    with executor.CampaignExecutor(2) as ex:
+        ex.compile_ahead(groups())
+    cold = {"a", "b"}
+    with executor.CampaignExecutor(1) as ex:  # one worker: nothing ahead
+        ex.compile_ahead(groups())
+    assert loaded() == [] and "compile" not in ex.timings
+
+
+def test_a_numba_cache_entry_is_found_by_its_function(tmp_path, monkeypatch):
+    numba = pytest.importorskip("numba")
+    if numba.config.CACHE_DIR:
+        pytest.skip("numba's cache is in NUMBA_CACHE_DIR")  # (the entry goes next to the file)
+    src = tmp_path / "kern_mod.py"
+    src.write_text("def twice(x):\n    return 2 * x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import kern_mod
+
+    assert not executor._in_numba_cache(kern_mod.twice)
+    k = numba.njit(cache=True)(kern_mod.twice)
+    k.compile((numba.types.float64,))
+    assert executor._in_numba_cache(k) and executor._in_numba_cache(kern_mod.twice)
