@@ -397,9 +397,9 @@ def _n_anchors(n_angles: int, n_rotations: int, every: int) -> int:
 def plan_hours(
     theta_i_deg: Any, rotations_deg: Any, preset: str = "modern", restandard_every: int = 0
 ) -> float:  # fmt: skip
-    """Real-instrument hours of an LBL plan (:func:`gonio.simulator.lbl_timing.
-    estimate_run_time`, three frames a capture) plus two swaps (sample out, standard in and
-    back) for each re-measured standard."""
+    """Real-instrument hours of an LBL plan, three frames a capture
+    (:func:`~gonio.simulator.lbl_timing.estimate_run_time`), plus two swaps (sample out,
+    standard in and back) for each re-measured standard."""
     from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
 
     timing = TIMINGS["ward1992" if preset == "ward1992" else "modern"]
