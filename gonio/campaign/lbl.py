@@ -287,7 +287,7 @@ def _prepare(
     t = time.perf_counter()  # a calibration folder is read now (made ones: in the stages)
     lab = _laboratory(plan, inst, outp) if plan.calibration is not None else None
     t_cal = time.perf_counter() - t if lab is not None else None
-    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings)
+    return _Setup(plan, outp, info, truth_model, inst, n_workers, lab, t_cal, warnings=warnings)
 
 
 def _laboratory(
