@@ -108,7 +108,49 @@ def laboratory_view(
             m["sensor"] = {k: s[k] for k in s if k in SENSOR_FIELDS}
             if sensor is not None and _same_binning(meta.get("binning"), sensor.get("binning")):
                 m["sensor"]["saturation_dn"] = float(sensor["saturation_dn"])
+            if sensor is not None and not _same_binning(meta.get("binning"), None):
+                img = digitised_clipping(img, m["sensor"].get("saturation_dn"))
         out.append((img, m))
+    return out
+
+
+#: a digitised pixel (the mean of a box of camera pixels: Ward's 108 x 80 from 640 x 480,
+#: Ward 1992 §3) above this fraction of the saturation level, on a slope of more than
+#: :data:`DIGITISED_SLOPE` across its 3 x 3 neighbourhood, may hold a clipped camera pixel
+#: and is treated as saturated. A flat field saturates a whole box at once; a lobe's peak
+#: does not, and its box reads below the top code. Measured on a ward1992 instrument (seed
+#: 0, rolled brass, 21 θi x 3 rotations, every effect off): 986 digitised pixels held a
+#: clipped camera pixel, at 0.08-0.99 of the top code (10th percentile 0.64, median 0.94),
+#: none next to a pixel at the top code; taken as they read, they moved rho_s by -0.9 % and
+#: alpha_y by +0.5 %
+DIGITISED_USABLE = 0.6
+#: the relative range (max - min over 3 x 3, over the pixel's reading) above which a
+#: digitised pixel is on a slope (the standard's smooth image stays below it)
+DIGITISED_SLOPE = 0.1
+
+
+def digitised_clipping(img: Any, saturation_dn: float | None) -> Any:
+    """``img`` (a digitised frame) with every pixel that may hold a clipped camera pixel
+    (:data:`DIGITISED_USABLE`, :data:`DIGITISED_SLOPE`) set to ``saturation_dn``, so that the
+    merge leaves it out of this exposure; unchanged without a saturation level."""
+    if saturation_dn is None or not np.isfinite(saturation_dn) or saturation_dn <= 0:
+        return img
+    import cv2
+
+    a = np.asarray(img, dtype=np.float32)
+    if a.ndim != 2:
+        return img
+    high = a > DIGITISED_USABLE * float(saturation_dn)
+    if not high.any():
+        return img
+    k = np.ones((3, 3), np.uint8)
+    spread = cv2.dilate(a, k) - cv2.erode(a, k)
+    suspect = high & (spread > DIGITISED_SLOPE * a)
+    if not suspect.any():
+        return img
+    out = np.array(img, copy=True)
+    out[suspect] = min(float(saturation_dn), float(np.iinfo(out.dtype).max)
+                       if out.dtype.kind in "ui" else float(saturation_dn))  # fmt: skip
     return out
 
 

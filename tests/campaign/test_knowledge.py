@@ -180,3 +180,23 @@ def test_realistic_reduction_never_reaches_the_simulator_truth(tmp_path):
     result = run(plan, tmp_path / "modern", workers=1)
     assert (tmp_path / "modern" / "calibration" / "calibration.json").is_file()
     _check_same_fit(result, _reduce_in_guarded_process(tmp_path / "modern"))
+
+
+def test_a_digitised_peak_near_saturation_is_left_out_and_a_flat_field_kept():
+    """Ward's digitiser averages boxes of camera pixels (Ward 1992 §3): a lobe's peak whose
+    box holds a clipped camera pixel reads below the top code. Such a pixel (high, on a
+    slope) is set to the saturation level so that the merge leaves it out; a flat field
+    (the standard) at the same level is kept, and a frame without a level is unchanged."""
+    from gonio.campaign.knowledge import DIGITISED_USABLE, digitised_clipping
+
+    sat = 4000.0
+    flat = np.full((8, 10), 0.9 * sat, dtype=np.uint16)
+    assert digitised_clipping(flat, sat) is flat
+    peak = np.full((8, 10), 0.2 * sat, dtype=np.uint16)
+    peak[4, 5] = 0.95 * sat  # a lobe's top, far above its neighbours
+    peak[4, 6] = 0.5 * sat  # on the slope, below the usable fraction
+    got = digitised_clipping(peak, sat)
+    assert got[4, 5] == sat and got[4, 6] == peak[4, 6]
+    assert np.array_equal(np.delete(got.ravel(), 4 * 10 + 5), np.delete(peak.ravel(), 45))
+    assert DIGITISED_USABLE * sat < 0.95 * sat
+    assert digitised_clipping(peak, None) is peak
