@@ -28,7 +28,8 @@ captures with the laboratory's calibration
     the saturation threshold measured on the laboratory's own saturated flat field
     (:mod:`gonio.calibration.photon_transfer`) instead of the side-car's nominal
     ``saturation_dn``, below which half of the realistic sensor's charge-clipped readings
-    lie.
+    lie; in a digitised frame also the pixels that may hold a clipped camera pixel
+    (:func:`digitised_clipping`).
 
 :func:`campaign_budget` then builds the fit's uncertainty budget from the same knowledge
 (:mod:`gonio.campaign.budget`, :mod:`gonio.campaign.budget_terms`); the
