@@ -234,6 +234,17 @@ def check_outputs(inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
                 )
 
 
+#: every instrument preset the command line accepts (LBL and Cornell builds)
+PRESET_CHOICES = ("modern", "ward1992", "cornell2005", "ideal")
+
+
+def add_preset_option(parser, help: str) -> None:
+    """``--preset`` (alias ``--instrument-preset``, its older name) with ``help``: the
+    instrument's build, one of :data:`PRESET_CHOICES`, default None (the instrument's own)."""
+    parser.add_argument("--preset", "--instrument-preset", dest="preset", default=None,
+                        choices=list(PRESET_CHOICES), help=help)  # fmt: skip
+
+
 def add_json_option(parser) -> None:
     """The ``--json PATH`` option every result-producing subcommand has."""
     parser.add_argument(

@@ -7,6 +7,7 @@ import os
 
 from gonio.cli._common import (
     add_json_option,
+    add_preset_option,
     check_output_dir,
     check_outputs,
     int_in,
@@ -109,13 +110,9 @@ def _plan_options(group) -> None:
 
 
 def _instrument_options(group) -> None:
-    group.add_argument(
-        "--preset",
-        "--instrument-preset",  # the same option's older name, kept as an alias
-        dest="preset",
-        default=None,
-        choices=["modern", "ward1992", "cornell2005", "ideal"],
-        help="the instrument's build and its imperfections (default modern on lbl, "
+    add_preset_option(
+        group,
+        "the instrument's build and its imperfections (default modern on lbl, "
         "cornell2005 on cornell; ideal = none; --instrument-preset is the same option)",
     )
     group.add_argument(

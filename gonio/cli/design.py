@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from gonio.cli._common import add_json_option, output_file, write_json
+from gonio.cli._common import add_json_option, add_preset_option, output_file, write_json
 
 COMMAND = "design"
 HELP = "design a measurement plan that reaches target uncertainties in the least instrument time"
@@ -22,13 +22,9 @@ def add_arguments(parser) -> None:
         help="the prior: a material preset (default garnet_red_paint on cornell, rolled_brass "
         "on lbl)",
     )
-    parser.add_argument(
-        "--preset",
-        "--instrument-preset",  # the campaign's older name, kept as an alias
-        dest="preset",
-        default=None,
-        choices=["cornell2005", "modern", "ward1992", "ideal"],
-        help="the instrument's build as the laboratory knows it (default cornell2005 on "
+    add_preset_option(
+        parser,
+        "the instrument's build as the laboratory knows it (default cornell2005 on "
         "cornell, modern on lbl)",
     )
     parser.add_argument(
