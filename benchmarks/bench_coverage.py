@@ -25,9 +25,10 @@ campaigns (each campaign resampled whole, 4000 resamples, a fixed seed), and ``m
 campaigns whose summary says their U is a lower bound (chi2/dof above the fit's note
 threshold) or that the lobe is narrower than the instrument resolves. The verdict: ``ok``
 with ``hi`` >= 95 % and U/rms <= 3; else ``flagged`` when the campaigns without such a
-statement cover (their ``hi`` >= 95 %, or there are none): a user is told, campaign by
-campaign, where U is not to be trusted; else ``SHORT``. A parameter whose U is as large as
-its value is counted as bounded, not measured.
+statement cover (their ``hi`` >= 95 %, or there are none) and, with U/rms > 3, there are
+none: a user is told, campaign by campaign, where U is not to be trusted; else ``SHORT``
+(too few inside U) or ``LOOSE`` (U more than 3x the rms error, unflagged). A parameter
+whose U is as large as its value is counted as bounded, not measured.
 
 The campaigns run as tasks of :func:`gonio.campaign.sweep.run_sweep` (``--executor process``
 with ``--workers``, or ``dask``), each in its own folder under ``--root``; a rerun skips the
@@ -249,16 +250,18 @@ def _honest(st: dict[str, Any]) -> bool:
 
 def _verdict(campaigns: list[dict[str, Any]], st: dict[str, Any]) -> str:
     """``ok``: the row's coverage is consistent with 95 % (``hi``) and U/rms <= 3;
-    ``flagged``: not, but the coverage of the row's campaigns without a misfit statement is
-    (or there are none): where a campaign does not say its U is a lower bound, its U holds
-    (U/rms is not asked of that subset: a few campaigns' rms says little, and a loose U is
-    not a dishonest one); ``SHORT``: neither."""
+    ``flagged``: not, but every campaign says its U is a lower bound where U/rms > 3, and
+    the campaigns that do not say so cover (``hi`` >= 95 %, U/rms not asked: a few
+    campaigns' rms says little), or there are none; ``LOOSE``: U/rms > 3 in campaigns that
+    say nothing; ``SHORT``: too few inside U in campaigns that say nothing."""
     if not st["determined"]:
         return "-"
     if _honest(st):
         return "ok"
     plain = [m for m in campaigns if not m.get("misfit", 0)]
-    if not plain:
+    if st["u_rms"] > 3.0 and plain:
+        return "LOOSE"
+    if st["hi"] >= 0.95 or not plain:
         return "flagged"
     sp = _stats(plain)
     return "flagged" if not sp["determined"] or sp["hi"] >= 0.95 else "SHORT"
