@@ -192,20 +192,18 @@ def lbl_candidates(
     gid = ai * len(rots) + ri
     ng = len(angles) * len(rots)
     P = len(names)
-    F = np.zeros((ng, P, P))
-    for g in range(ng):
-        rows = gid == g
-        F[g] = jr[rows].T @ jr[rows]
+    order = np.argsort(gid, kind="stable")  # each capture's rows together
+    edges = np.searchsorted(gid[order], np.arange(ng + 1))
+    jr_s = jr[order]
+    F = np.stack([jr_s[a:b].T @ jr_s[a:b] for a, b in itertools.pairwise(edges)])
 
-    def per_capture(dy: NDArray) -> NDArray:  # (ng, P): Σ over each capture's rows of Jᵀ W dy
-        v = jr * (w * np.nan_to_num(dy))[:, None]
-        return np.stack([np.bincount(gid, weights=v[:, j], minlength=ng) for j in range(P)], 1)
+    def per_capture(dy: NDArray) -> NDArray:  # (ng, P, m): Σ over each capture's rows of Jᵀ W dy
+        y = (w[:, None] * np.nan_to_num(dy.reshape(len(w), -1)))[order]
+        return np.stack([jr_s[a:b].T @ y[a:b] for a, b in itertools.pairwise(edges)])
 
     sysp = [p for p in perts if p.kind == "systematic" and p.name not in _PLAN_TERMS
             and not p.name.startswith(_LAMP_ANCHOR)]  # fmt: skip
-    B = np.zeros((ng, P, len(sysp)))
-    for e, p in enumerate(sysp):
-        B[:, :, e] = per_capture(p.u * p.dy)
+    B = per_capture(np.stack([p.u * p.dy for p in sysp], axis=1)) if sysp else np.zeros((ng, P, 0))
     rand, rand_exp = [], []
     for p in perts:
         if p.kind != "random":
@@ -253,6 +251,35 @@ def lbl_candidates(
         [p.name for p in sysp] + [p.name for p in perts if p.kind == "random"],
         dict(res.summary["budget"]["expanded"]),
     )  # fmt: skip
+
+
+def candidate_sets(
+    material: str, truths: list[Any], *, preset: str = "modern",
+    angles_deg: tuple[float, ...] | None = None, workers: int | None = None,
+) -> list[_LBLCandidates]:  # fmt: skip
+    """The candidate campaign (:func:`lbl_candidates`) on design instruments 1000, 1001, ...,
+    one per prior model of ``truths`` (None: the material preset's), on ``workers``
+    processes (default the machine's cores, at most 4).
+
+    The campaigns are independent (each draws from its own seeds, so the result does not
+    depend on ``workers``); they run on processes forked from this one after a warm-up
+    campaign (one angle, one rotation, design instrument 1000) has imported the campaign's
+    modules and loaded its compiled kernels, which the processes then inherit instead of
+    each loading them again (about 2 s of processor time each)."""
+    from gonio import campaign
+    from gonio.campaign.executor import CampaignExecutor, default_workers
+
+    jobs = [functools.partial(lbl_candidates, material, preset=preset, truth=m,
+                              design_instrument_seed=1000 + k, angles_deg=angles_deg)
+            for k, m in enumerate(truths)]  # fmt: skip
+    n = default_workers(len(jobs), minimum_tasks=2) if workers is None else int(workers)
+    with CampaignExecutor(max(1, min(n, len(jobs)))) as ex:
+        if ex.workers > 1:  # the warm-up the forked processes inherit
+            plan = campaign.Plan(material=material, preset=preset, plots=False, seed=1000,
+                                 instrument_seed=1000, theta_i_deg=(45.0,),
+                                 rotations_deg=(0.0,))  # fmt: skip
+            campaign.run(plan, None, quiet=True, workers=1, truth=truths[0])
+        return ex.parallel(jobs)
 
 
 class _Stack:
@@ -530,6 +557,7 @@ def design_lbl(
     n_instruments: int = 6,
     candidates: _LBLCandidates | list[_LBLCandidates] | None = None,
     truth: Any = None,
+    workers: int | None = None,
 ) -> LBLDesign:
     """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
     parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
@@ -546,7 +574,8 @@ def design_lbl(
     + t₀.₉₅,ₖ₋₁ √(1 + 1/K) × their standard deviation). A target at or below the floor
     (the 95 % bound of the systematic terms alone on the full candidate set, the terms
     more data does not shrink) is reported unreachable with its dominant term, not chased.
-    ``margin``: a further fraction below each target the search aims at."""
+    ``margin``: a further fraction below each target the search aims at. ``workers``:
+    processes of the candidate campaigns (:func:`candidate_sets`)."""
     from gonio.campaign.design import parse_targets
 
     t0 = time.perf_counter()
@@ -560,8 +589,8 @@ def design_lbl(
     if candidates is None:  # the cheap checks before the candidate campaign
         _precheck(material, tg, preset, time_limit_h)
     if candidates is None:
-        cs = [lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k,
-                             truth=truth) for k in range(max(1, int(n_instruments)))]  # fmt: skip
+        cs = candidate_sets(material, [truth] * max(1, int(n_instruments)), preset=preset,
+                            workers=workers)  # fmt: skip
     else:
         cs = list(candidates) if isinstance(candidates, list | tuple) else [candidates]
     c = cs[0]
