@@ -57,7 +57,7 @@ Time (``gonio design --instrument lbl --default-u 1.25``: rolled brass, six inst
 whole process on a shared 2-core machine, load average 3-6): 25.1 s of processor time,
 median of 4 runs (22.9-26.9), against 28.6 s (27.9-34.0) before, when the search predicted
 each instrument apart (A/B pairs 0.83, 0.78-0.92); 20.5 s wall (20.2 s of processor time) in a
-run whose core was free. The search takes 1.2-1.5 s (it took 6.4 s); the rest is the six
+run whose core was free. The search takes 1.2-2.0 s (it took 6.4 s); the rest is the six
 candidate campaigns, 2.8-3.9 s of processor time each, and the design uses all they do:
 the captures and their reduction (about 80 %: the samples, their σ, each capture's
 residuals), the fit (the Jacobian) and the budget (every term's perturbation). They already
