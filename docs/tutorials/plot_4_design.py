@@ -88,11 +88,12 @@ print(tight.unreachable)
 # instrument reports. What it cannot know is which instrument will measure: the ``U (95 %)``
 # column is the U at 95 % over the design instruments (a Student prediction bound from them),
 # and the targets are met by it; ``designed U`` is their mean. ``gonio design --instrument
-# lbl --default-u 1`` takes the default plan's 21 angles as the candidates on three design
-# instruments (``--design-instruments K`` for more). To keep this page quick the candidates
-# here are every 10° from 0° to 80° (the default rotations) on two design instruments, and
-# the targets 1.25 times the mean U of all those candidates together (the "default" column).
-# A target no plan meets at 95 % is reported unreachable with its floor, not chased.
+# lbl --default-u 1`` takes the default plan's 21 angles as the candidates on six design
+# instruments (``--design-instruments K`` for another number; about 20-25 s on two cores).
+# To keep this page quick the candidates here are every 10° from 0° to 80° (the default
+# rotations) on two design instruments, and the targets 1.25 times the mean U of all those
+# candidates together (the "default" column). A target no plan meets at 95 % is reported
+# unreachable with its floor, not chased.
 cands_lbl = [
     design_lbl.lbl_candidates(
         "rolled_brass", angles_deg=tuple(range(0, 81, 10)), design_instrument_seed=1000 + k

@@ -257,9 +257,8 @@ def adaptive_lbl(
     t1 = time.perf_counter()
     three = _lbl_prior(pilot)
     priors = [three[k % 3] for k in range(n_instruments)]
-    cands = [design_lbl.lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k,
-                                       truth=m, angles_deg=candidate_angles_deg)
-             for k, m in enumerate(priors)]  # fmt: skip
+    cands = design_lbl.candidate_sets(material, priors, preset=preset,
+                                      angles_deg=candidate_angles_deg)  # fmt: skip
     res = design_lbl.design_lbl(material, tg, preset=preset, time_limit_h=left,
                                 candidates=cands)  # fmt: skip
     plan_file = outp / "designed_plan.json"

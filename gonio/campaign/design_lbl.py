@@ -39,7 +39,9 @@ forward selection of incidence angles (the largest decrease of the logarithmic h
 :mod:`gonio.campaign.design` per second of instrument time), then a backward pass that drops
 angles while every target stays met; the quickest plan that meets every target wins. A target
 no plan meets on its own (searched alone) is reported unreachable, with the lowest U the
-search found for it (its floor) and that plan's dominant term, and not chased.
+search found for it (its floor) and that plan's dominant term, and not chased. Each plan is
+predicted on every design instrument at once (:class:`_Stack`: the candidates as arrays over
+the instruments; the plan's lamp schedule and hours once per plan, not per instrument).
 
 What the design cannot know is the instrument: each physical instrument of the preset has
 its own calibration (its f-stop table, its exposure scatter) and its own misfit, and the same
@@ -49,8 +51,20 @@ heavy-tailed). The candidate campaign therefore runs on ``n_instruments`` instru
 central prediction is their mean and the targets are met by the U at 95 % over instruments
 (the one-sided Student prediction bound from those instruments). Three instruments estimate
 that spread poorly, and the search, choosing the plan whose bound is lowest among many,
-favours plans whose few instruments happen to agree; the default is six (each a candidate
-campaign of about 4 s on an idle 2-core machine).
+favours plans whose few instruments happen to agree; the default is six.
+
+Time (``gonio design --instrument lbl --default-u 1.25``: rolled brass, six instruments; the
+whole process on a shared 2-core machine, load average 3-6): 25.1 s of processor time,
+median of 4 runs (22.9-26.9), against 28.6 s (27.9-34.0) before, when the search predicted
+each instrument apart (A/B pairs 0.83, 0.78-0.92); 20.5 s wall (20.2 s of processor time) in a
+run whose core was free. The search takes 1.2-2.0 s (it took 6.4 s); the rest is the six
+candidate campaigns, 2.8-3.9 s of processor time each, and the design uses all they do:
+the captures and their reduction (about 80 %: the samples, their σ, each capture's
+residuals), the fit (the Jacobian) and the budget (every term's perturbation). They already
+skip what it does not use (no folder: no raw frames, tables, plots or report files written;
+each instrument's calibration read from the calibration cache) and share nothing else
+between instruments (each has its own calibration, geometry and noise). On two processes
+(:func:`candidate_sets`) they would take about 16 s on two idle cores, but took longer here.
 
 Cadences, each chosen from the budget's terms that depend on it:
 
@@ -103,6 +117,7 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import time
@@ -119,7 +134,8 @@ __all__ = ["LBLDesign", "design_lbl", "lbl_candidates", "plan_hours", "write_lbl
 #: the budget's terms a plan changes through more than its captures' sum: the lamp's (its
 #: schedule: the time between each capture and its standard's, the re-measured standards)
 #: and the exposure's (its ``u``: the frames of the plan's brackets, the stops it uses)
-_PLAN_TERMS = ("lamp_warmup", "lamp_drift", "exposure_table")
+_LAMP_TERMS = ("lamp_warmup", "lamp_drift")
+_PLAN_TERMS = (*_LAMP_TERMS, "exposure_table")
 _LAMP_ANCHOR = "lamp_anchor["
 
 
@@ -190,20 +206,18 @@ def lbl_candidates(
     gid = ai * len(rots) + ri
     ng = len(angles) * len(rots)
     P = len(names)
-    F = np.zeros((ng, P, P))
-    for g in range(ng):
-        rows = gid == g
-        F[g] = jr[rows].T @ jr[rows]
+    order = np.argsort(gid, kind="stable")  # each capture's rows together
+    edges = np.searchsorted(gid[order], np.arange(ng + 1))
+    jr_s = jr[order]
+    F = np.stack([jr_s[a:b].T @ jr_s[a:b] for a, b in itertools.pairwise(edges)])
 
-    def per_capture(dy: NDArray) -> NDArray:  # (ng, P): Σ over each capture's rows of Jᵀ W dy
-        v = jr * (w * np.nan_to_num(dy))[:, None]
-        return np.stack([np.bincount(gid, weights=v[:, j], minlength=ng) for j in range(P)], 1)
+    def per_capture(dy: NDArray) -> NDArray:  # (ng, P, m): Σ over each capture's rows of Jᵀ W dy
+        y = (w[:, None] * np.nan_to_num(dy.reshape(len(w), -1)))[order]
+        return np.stack([jr_s[a:b].T @ y[a:b] for a, b in itertools.pairwise(edges)])
 
     sysp = [p for p in perts if p.kind == "systematic" and p.name not in _PLAN_TERMS
             and not p.name.startswith(_LAMP_ANCHOR)]  # fmt: skip
-    B = np.zeros((ng, P, len(sysp)))
-    for e, p in enumerate(sysp):
-        B[:, :, e] = per_capture(p.u * p.dy)
+    B = per_capture(np.stack([p.u * p.dy for p in sysp], axis=1)) if sysp else np.zeros((ng, P, 0))
     rand, rand_exp = [], []
     for p in perts:
         if p.kind != "random":
@@ -253,133 +267,219 @@ def lbl_candidates(
     )  # fmt: skip
 
 
-def _timing(c: _LBLCandidates) -> Any:
-    from gonio.simulator.lbl_timing import TIMINGS
+def candidate_sets(
+    material: str, truths: list[Any], *, preset: str = "modern",
+    angles_deg: tuple[float, ...] | None = None, workers: int = 1,
+) -> list[_LBLCandidates]:  # fmt: skip
+    """The candidate campaign (:func:`lbl_candidates`) on design instruments 1000, 1001, ...,
+    one per prior model of ``truths`` (None: the material preset's), one after the other
+    here, or on ``workers`` processes.
 
-    return TIMINGS["ward1992" if c.preset == "ward1992" else "modern"]
+    The campaigns are independent (each draws from its own seeds, so the result does not
+    depend on ``workers``, tested). With more than one worker they run on processes forked
+    from this one after a warm-up campaign (one angle, one rotation, design instrument
+    1000) has imported the campaign's modules and loaded its compiled kernels, which the
+    processes inherit instead of each loading them again. Measured (rolled brass, six
+    instruments, ``gonio design --instrument lbl --default-u 1.25``): one process 20.2 s
+    of processor time, 20.5 s wall (load average 3.3); two processes 3.9 s in this one
+    (imports, warm-up, search) and 11.7 and 11.5 s in the two children (each campaign
+    about 25 % dearer than one after the other: every process faults in its own working
+    set), a critical path of about 16 s on two idle cores; but on this shared 2-core
+    machine (load average 5-6) two processes took 1.15 times the wall time of one (median
+    of 4 pairs, 1.03-1.74) and 1.12 times the processor time, so one is the default."""
+    from gonio import campaign
+    from gonio.campaign.executor import CampaignExecutor
+
+    jobs = [functools.partial(lbl_candidates, material, preset=preset, truth=m,
+                              design_instrument_seed=1000 + k, angles_deg=angles_deg)
+            for k, m in enumerate(truths)]  # fmt: skip
+    with CampaignExecutor(max(1, min(int(workers), len(jobs)))) as ex:
+        if ex.workers > 1:  # the warm-up the forked processes inherit
+            plan = campaign.Plan(material=material, preset=preset, plots=False, seed=1000,
+                                 instrument_seed=1000, theta_i_deg=(45.0,),
+                                 rotations_deg=(0.0,))  # fmt: skip
+            campaign.run(plan, None, quiet=True, workers=1, truth=truths[0])
+        return ex.parallel(jobs)
 
 
-def _plan_vectors(
-    c: _LBLCandidates, amask: NDArray, rmask: NDArray, every: int
-) -> tuple[list[NDArray], list[str], float]:  # fmt: skip
-    """The plan's own systematic terms (:data:`_PLAN_TERMS`, the re-measured standards'
-    anchors) as ``Σ_g Jᵀ W δy_g`` vectors (``u`` included), and the factor of the exposure
-    terms' ``u`` against the candidate campaign's.
+class _Stack:
+    """The design instruments' candidates as arrays over the instruments (first axis ``K``),
+    so that a plan's prediction is made on every instrument at once; and what depends on
+    the plan alone (its lamp schedule, its hours) computed once per plan, not per
+    instrument. Each capture ``g`` (angle x rotation, flattened) holds its information
+    ``F_g``, and one column of ``Σ Jᵀ W δy`` per budget term: the systematic terms (``u``
+    included), then each realisation of each random term (one capture's exposure, one
+    angle's standard)."""
 
-    The lamp: each sample capture's time ``t_m`` and its standard's ``t_s`` from the
-    plan's schedule (:func:`gonio.simulator.lbl_timing.schedule`, three frames a capture, as
-    the campaign's lamp clock), ``δy = y f(t_m, t_s)`` (:func:`gonio.campaign.budget_terms.
-    lamp_terms`); with the standard re-measured after every ``every``-th angle of each
-    rotation (a swap after the sample's capture, as :meth:`gonio.campaign.lbl.
-    SimulatedInstrument.shoot_restandard` stamps it), what the interpolation between those
-    anchors leaves, and each anchor's own exposure scatter."""
-    from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
-    from gonio.simulator.lbl_timing import schedule
+    def __init__(self, cs: list[_LBLCandidates]) -> None:
+        c = cs[0]
+        for x in cs[1:]:
+            if (x.names != c.names or x.preset != c.preset or x.term_names != c.term_names
+                    or not np.array_equal(x.angles, c.angles)
+                    or not np.array_equal(x.rotations, c.rotations)):  # fmt: skip
+                raise DesignError("design instruments with different candidates or budget terms")
+        self.c, self.K, self.P = c, len(cs), len(c.names)
+        from gonio.simulator.lbl_timing import TIMINGS
 
-    sel = amask[:, None] & rmask[None, :]
-    # the budget's rules (gonio.campaign.knowledge): one u for every capture, that of the
-    # bracket with the most frames; the table's u the RMS over the captures with stops
-    u_cap = float(c.ucap[sel].min())
-    scale = u_cap / c.u_capture if c.u_capture > 0 else 1.0
-    S = c.S[amask][:, rmask]  # (na, nr, P)
-    out, names = [], []
-    t2 = c.tab2[sel]
-    if np.isfinite(t2).any():
-        u_tab = math.sqrt(float(np.nanmean(t2)))
-        if u_tab > 0:
-            out.append(u_tab * S.sum(axis=(0, 1)))
-            names.append("exposure_table")
-    if not c.u_lamp:
-        return out, names, scale
-    angles, rots = c.angles[amask], c.rotations[rmask]
-    timing = _timing(c)
-    clock = {(e["kind"], e["theta_i_deg"], e["rotation_deg"]): e["start_s"]
-             for e in schedule(angles, rots, 3, timing)}  # fmt: skip
-    tm = np.array([[clock[("measured", a, r)] for r in rots] for a in angles])
-    ts = np.array([clock[("standard", a, None)] for a in angles])[:, None] * np.ones(len(rots))
-    shapes = {"lamp_warmup": lambda a, b: np.exp(-b / tau) - np.exp(-a / tau),
-              "lamp_drift": lambda a, b: (a - b) / 3600.0}  # fmt: skip
-    if every:
-        k = np.arange(len(angles)) % every == 0
-        ta, tsa = (tm[k] + 1.0 + timing.swap_s).ravel(), ts[k].ravel()
-        order = np.argsort(ta, kind="stable")
-        ta, tsa = ta[order], tsa[order]
-    for name, f in shapes.items():
-        u = c.u_lamp.get(name, 0.0)
-        if u <= 0:
-            continue
-        rel = f(tm, ts)
+        self.timing = TIMINGS["ward1992" if c.preset == "ward1992" else "modern"]
+        G, P, E = c.angles.size * c.rotations.size, self.P, c.B.shape[-1]
+        sizes = [int(max(int(x.rand[t][0].max()) + 1 for x in cs)) for t in range(len(c.rand))]
+        off = np.concatenate([[E], E + np.cumsum(sizes)]).astype(int)
+        self.D = np.zeros((self.K, G, P, int(off[-1])))
+        self.exposure = np.zeros(int(off[-1]), bool)  # the columns whose u is the plan's
+        for k, x in enumerate(cs):
+            self.D[k, :, :, :E] = x.B.reshape(G, P, E)
+            for t, (grp, g, vec) in enumerate(x.rand):
+                np.add.at(self.D[k], (g, slice(None), off[t] + grp), vec)
+        for t, is_exp in enumerate(c.rand_exposure):
+            self.exposure[off[t] : off[t + 1]] = is_exp
+        self.random = np.arange(off[-1]) >= E
+        self.names = c.term_names[:E] + [n for t, n in enumerate(c.term_names[E:])
+                                         for _ in range(sizes[t])]  # fmt: skip
+
+        def stack(name: str, shape: tuple) -> NDArray:
+            return np.stack([np.asarray(getattr(x, name), float).reshape(shape) for x in cs])
+
+        self.F, self.S, self.jr = stack("F", (G, P, P)), stack("S", (G, P)), stack("jr", (G, P))
+        self.chi2, self.n_rows = stack("chi2", (G,)), stack("n_rows", (G,))
+        self.tab2, self.ucap = stack("tab2", (G,)), stack("ucap", (G,))
+        self.u_capture = np.array([x.u_capture for x in cs])
+        self.cov_scale = np.array([x.cov_scale for x in cs])
+        self.u_lamp = {n: np.array([x.u_lamp.get(n, 0.0) for x in cs]) for n in _LAMP_TERMS}
+        self.has_lamp = np.array([bool(x.u_lamp) for x in cs])
+        self._clocks: dict[tuple, tuple] = {}
+        self._hours: dict[tuple, float] = {}
+
+    def hours(self, amask: NDArray, rmask: NDArray, every: int = 0) -> float:
+        if not amask.any() or not rmask.any():
+            return 0.0
+        key = (amask.tobytes(), rmask.tobytes(), every)
+        if key not in self._hours:
+            c = self.c
+            self._hours[key] = plan_hours(c.angles[amask], c.rotations[rmask], c.preset, every)
+        return self._hours[key]
+
+    def _lamp(self, amask: NDArray, rmask: NDArray, every: int) -> tuple:
+        """The plan's lamp shapes ``f(t_m, t_s)`` (na, nr) per lamp term, less what the
+        interpolation between the re-measured standards leaves, and the anchors'
+        interpolation weights (n_anchors, na, nr); computed once per plan."""
+        from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
+        from gonio.simulator.lbl_timing import schedule
+
+        key = (amask.tobytes(), rmask.tobytes(), every)
+        if key in self._clocks:
+            return self._clocks[key]
+        angles, rots = self.c.angles[amask], self.c.rotations[rmask]
+        clock = {(e["kind"], e["theta_i_deg"], e["rotation_deg"]): e["start_s"]
+                 for e in schedule(angles, rots, 3, self.timing)}  # fmt: skip
+        tm = np.array([[clock[("measured", a, r)] for r in rots] for a in angles])
+        ts = np.array([clock[("standard", a, None)] for a in angles])[:, None] * np.ones(len(rots))
+        rel, weights = {}, None
         if every:
-            rel = rel - np.interp(tm, ta, f(ta, tsa))
-        out.append(u * np.einsum("ar,arp->p", rel, S))
-        names.append(name)
-    if every and u_cap > 0:
-        for j in range(ta.size):
-            unit = np.zeros(ta.size)
-            unit[j] = 1.0
-            w = np.interp(tm, ta, unit)
-            out.append(-math.sqrt(2.0) * u_cap * np.einsum("ar,arp->p", w, S))
-            names.append(f"lamp_anchor[{j}]")
-    return out, names, scale
+            k = np.arange(len(angles)) % every == 0
+            ta, tsa = (tm[k] + 1.0 + self.timing.swap_s).ravel(), ts[k].ravel()
+            order = np.argsort(ta, kind="stable")
+            ta, tsa = ta[order], tsa[order]
+            weights = np.stack([np.interp(tm, ta, unit) for unit in np.eye(ta.size)])
+        shapes = {"lamp_warmup": lambda a, b: np.exp(-b / tau) - np.exp(-a / tau),
+                  "lamp_drift": lambda a, b: (a - b) / 3600.0}  # fmt: skip
+        for name, f in shapes.items():
+            rel[name] = f(tm, ts) - (np.interp(tm, ta, f(ta, tsa)) if every else 0.0)
+        self._clocks[key] = (rel, weights)
+        return rel, weights
+
+    def _plan_vectors(self, amask: NDArray, rmask: NDArray, every: int, u_cap: NDArray
+                      ) -> tuple[NDArray, list[str]]:  # fmt: skip
+        """The plan's own systematic terms (:data:`_PLAN_TERMS`, the re-measured standards'
+        anchors) as ``Σ_g Jᵀ W δy_g`` columns (K, P, X), ``u`` included.
+
+        The exposure table's ``u``: the RMS over the plan's captures with stops. The lamp:
+        each sample capture's time ``t_m`` and its standard's ``t_s`` from the plan's
+        schedule (:func:`gonio.simulator.lbl_timing.schedule`, three frames a capture, as
+        the campaign's lamp clock), ``δy = y f(t_m, t_s)`` (:func:`gonio.campaign.
+        budget_terms.lamp_terms`); with the standard re-measured after every ``every``-th
+        angle of each rotation (a swap after the sample's capture, as :meth:`gonio.campaign.
+        lbl.SimulatedInstrument.shoot_restandard` stamps it), what the interpolation between
+        those anchors leaves, and each anchor's own exposure scatter (``√2 u``)."""
+        sel = (amask[:, None] & rmask[None, :]).reshape(-1)
+        cols, names = [], []
+        t2 = self.tab2[:, sel]
+        n_tab = np.isfinite(t2).sum(axis=1)
+        if n_tab.any():
+            u_tab = np.sqrt(np.nansum(t2, axis=1) / np.maximum(n_tab, 1))
+            cols.append(u_tab[:, None] * self.S[:, sel].sum(axis=1))
+            names.append("exposure_table")
+        if not self.has_lamp.any():
+            return np.stack(cols, axis=2) if cols else None, names
+        S = self.S.reshape(self.K, amask.size, rmask.size, self.P)[:, amask][:, :, rmask]
+        rel, weights = self._lamp(amask, rmask, every)
+        for name in _LAMP_TERMS:
+            u = self.u_lamp[name]
+            if (u > 0).any():
+                cols.append(u[:, None] * np.einsum("ar,karp->kp", rel[name], S))
+                names.append(name)
+        if weights is not None:
+            a = -math.sqrt(2.0) * np.where(self.has_lamp, u_cap, 0.0)
+            cols += list(np.einsum("k,jar,karp->jkp", a, weights, S))
+            names += [f"lamp_anchor[{j}]" for j in range(len(weights))]
+        return np.stack(cols, axis=2) if cols else None, names
+
+    def terms(self, amask: NDArray, rmask: NDArray, ridge: NDArray, every: int = 0
+              ) -> tuple[NDArray, NDArray, NDArray, list[str]]:  # fmt: skip
+        """The plan ``amask`` x ``rmask`` with the standard re-measured after every
+        ``every``-th angle (0: never) on every instrument: its statistical u² (K, P), its
+        covariance ``C`` (K, P, P), its budget columns ``Σ_g Jᵀ W δy_g`` (K, P, M) and their
+        names (the systematic terms', each random realisation's, the plan's own)."""
+        sel = (amask[:, None] & rmask[None, :]).reshape(-1)
+        C = np.linalg.inv(self.F[:, sel].sum(axis=1) + np.diag(ridge))
+        # the fit's covariance factor max(1, χ²/dof) of the plan's own captures: their χ²
+        # at the candidate fit less what refitting them alone removes to first order
+        # (bᵀ C b, b = Σ Jᵀ W r), over n - P (the misfit differs from capture to capture)
+        b = self.jr[:, sel].sum(axis=1)
+        chi2 = self.chi2[:, sel].sum(axis=1) - np.einsum("kp,kpq,kq->k", b, C, b)
+        dof = self.n_rows[:, sel].sum(axis=1) - self.P
+        scale = np.where(dof > 0, np.maximum(1.0, chi2 / np.maximum(dof, 1)), self.cov_scale)
+        stat = np.diagonal(C, axis1=1, axis2=2) * scale[:, None]
+        # the budget's rule (gonio.campaign.knowledge): one exposure u for every capture,
+        # that of the bracket with the most frames
+        u_cap = self.ucap[:, sel].min(axis=1)
+        f = np.where(self.u_capture > 0, u_cap / np.where(self.u_capture > 0, self.u_capture, 1),
+                     1.0)  # fmt: skip
+        V = self.D[:, sel].sum(axis=1)
+        V[:, :, self.exposure] *= f[:, None, None]
+        extra, names = self._plan_vectors(amask, rmask, every, u_cap)
+        if extra is not None:
+            V = np.concatenate([V, extra], axis=2)
+        return stat, C, V, self.names + names
+
+    def u2(self, amask: NDArray, rmask: NDArray, ridge: NDArray, every: int = 0) -> NDArray:
+        """Predicted squared standard uncertainty (K, P): statistical + Σ over the columns
+        of ``(C Σ_g Jᵀ W δy_g)²`` (one realisation each, shared by the plan's captures)."""
+        stat, C, V, _ = self.terms(amask, rmask, ridge, every)
+        return stat + np.sum(np.matmul(C, V) ** 2, axis=2)
 
 
-def _u2(
-    c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray, every: int = 0,
-    parts: bool = False,
-) -> NDArray:  # fmt: skip
-    """Predicted squared standard uncertainty (P,) of the plan ``amask`` x ``rmask`` with
-    the standard re-measured after every ``every``-th angle (0: never); ``parts``: as
-    ``(statistical, systematic, random)``."""
-    sel = amask[:, None] & rmask[None, :]
-    F = c.F[sel].sum(axis=0) + np.diag(ridge)
-    C = np.linalg.inv(F)
-    stat = np.diag(C) * _cov_scale(c, sel, C)
-    vecs, _, scale = _plan_vectors(c, amask, rmask, every)
-    Bs = c.B[sel].sum(axis=0)
-    if vecs:
-        Bs = np.concatenate([Bs, np.stack(vecs, axis=1)], axis=1)
-    sys = np.sum((C @ Bs) ** 2, axis=1)
-    rnd = np.zeros_like(stat)
-    flat = sel.reshape(-1)
-    for (grp, g, vec), is_exp in zip(c.rand, c.rand_exposure):
-        keep = flat[g]
-        if not keep.any():
-            continue
-        n_c = int(grp.max()) + 1
-        R = np.zeros((n_c, vec.shape[1]))
-        np.add.at(R, grp[keep], vec[keep])
-        rnd += np.sum((R @ C.T) ** 2, axis=0) * (scale**2 if is_exp else 1.0)
-    if parts:
-        return np.stack([stat, sys, rnd])
-    return stat + sys + rnd
+def _u2(c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray,
+        every: int = 0) -> NDArray:  # fmt: skip
+    """Predicted squared standard uncertainty (P,) of the plan on one design instrument."""
+    return _Stack([c]).u2(amask, rmask, ridge, every)[0]
 
 
-def _cov_scale(c: _LBLCandidates, sel: NDArray, C: NDArray) -> float:
-    """The plan's fit's covariance factor ``max(1, χ²/dof)`` (:func:`gonio.fit.fit` with
-    known σ): its captures' χ² at the candidate fit less what refitting them alone removes
-    to first order (``bᵀ F⁻¹ b``, ``b = Σ Jᵀ W r``), over ``n - P`` degrees of freedom —
-    the instrument's misfit differs from capture to capture, so a plan's factor is its
-    own, not the candidate campaign's."""
-    b = c.jr[sel].sum(axis=0)
-    chi2 = float(c.chi2[sel].sum()) - float(b @ C @ b)
-    dof = int(c.n_rows[sel].sum()) - len(c.names)
-    return max(1.0, chi2 / dof) if dof > 0 else c.cov_scale
-
-
+@functools.lru_cache
 def _spread_factor(k: int) -> float:
     """One-sided 95 % prediction factor for the U of an instrument not yet seen, from ``k``
     instruments' U (Student's t with k - 1 degrees of freedom, × √(1 + 1/k))."""
     if k < 2:
         return 0.0
-    from scipy.stats import t
+    from scipy.special import stdtrit  # (Student's t quantile; scipy.stats costs 0.5 s)
 
-    return float(t.ppf(0.95, k - 1) * math.sqrt(1.0 + 1.0 / k))
+    return float(stdtrit(k - 1, 0.95) * math.sqrt(1.0 + 1.0 / k))
 
 
-def _U_all(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, ridge: NDArray,
+def _U_all(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
            every: int = 0) -> NDArray:  # fmt: skip
     """Expanded U (k = 2) on every design instrument, (K, P)."""
-    return 2.0 * np.sqrt(np.stack([_u2(c, amask, rmask, ridge, every) for c in cs]))
+    return 2.0 * np.sqrt(st.u2(amask, rmask, ridge, every))
 
 
 def _U95(U: NDArray) -> tuple[NDArray, NDArray]:
@@ -406,12 +506,6 @@ def plan_hours(
     t = estimate_run_time(list(theta_i_deg), list(rotations_deg), 3, timing)["total_s"]
     n_a = _n_anchors(len(theta_i_deg), len(rotations_deg), int(restandard_every))
     return (t + 2.0 * timing.swap_s * n_a) / 3600.0
-
-
-def _hours(c: _LBLCandidates, amask: NDArray, rmask: NDArray, every: int = 0) -> float:
-    if not amask.any() or not rmask.any():
-        return 0.0
-    return plan_hours(c.angles[amask], c.rotations[rmask], c.preset, every)
 
 
 @dataclasses.dataclass
@@ -483,6 +577,7 @@ def design_lbl(
     n_instruments: int = 6,
     candidates: _LBLCandidates | list[_LBLCandidates] | None = None,
     truth: Any = None,
+    workers: int = 1,
 ) -> LBLDesign:
     """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
     parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
@@ -499,7 +594,8 @@ def design_lbl(
     + t₀.₉₅,ₖ₋₁ √(1 + 1/K) × their standard deviation). A target at or below the floor
     (the 95 % bound of the systematic terms alone on the full candidate set, the terms
     more data does not shrink) is reported unreachable with its dominant term, not chased.
-    ``margin``: a further fraction below each target the search aims at."""
+    ``margin``: a further fraction below each target the search aims at. ``workers``:
+    processes of the candidate campaigns (:func:`candidate_sets`)."""
     from gonio.campaign.design import parse_targets
 
     t0 = time.perf_counter()
@@ -513,11 +609,12 @@ def design_lbl(
     if candidates is None:  # the cheap checks before the candidate campaign
         _precheck(material, tg, preset, time_limit_h)
     if candidates is None:
-        cs = [lbl_candidates(material, preset=preset, design_instrument_seed=1000 + k,
-                             truth=truth) for k in range(max(1, int(n_instruments)))]  # fmt: skip
+        cs = candidate_sets(material, [truth] * max(1, int(n_instruments)), preset=preset,
+                            workers=workers)  # fmt: skip
     else:
         cs = list(candidates) if isinstance(candidates, list | tuple) else [candidates]
     c = cs[0]
+    st = _Stack(cs)
     valid = set(c.names) | {"all"}
     for name in tg:
         if name not in valid:
@@ -529,9 +626,9 @@ def design_lbl(
     all_a = np.ones(len(c.angles), bool)
     all_r = np.ones(len(c.rotations), bool)
     zero = np.zeros(P)
-    u_def, u_def95 = _U95(_U_all(cs, all_a, all_r, zero))
+    u_def, u_def95 = _U95(_U_all(st, all_a, all_r, zero))
     default = {"n_angles": len(c.angles), "n_rotations": len(c.rotations),
-               "hours": _hours(c, all_a, all_r),
+               "hours": st.hours(all_a, all_r),
                "predicted": dict(zip(c.names, map(float, u_def))),
                "predicted_95": dict(zip(c.names, map(float, u_def95)))}  # fmt: skip
     tabs: dict[str, float] = {}
@@ -546,57 +643,57 @@ def design_lbl(
     t2 = np.array([tabs.get(p, math.inf) ** 2 for p in c.names]) * (1 - margin) ** 2
     limit = math.inf if time_limit_h is None else time_limit_h
     one = np.eye(len(c.angles), dtype=bool)[0], np.eye(len(c.rotations), dtype=bool)[0]
-    quickest = _hours(c, *one)
+    quickest = st.hours(*one)
     if quickest > limit:
         raise DesignError(
             f"time limit {time_limit_h} h: no plan can meet it (one angle at one rotation "
             f"takes {quickest:.3g} h)"
         )
-    best = _search(cs, t2, ridge, limit)
+    best = _search(st, t2, ridge, limit)
     unreachable: dict[str, dict[str, Any]] = {}
     if best[0]:  # a target missed: is it out of reach alone? (then not chased)
         for i, p in enumerate(c.names):
             if not math.isfinite(t2[i]):
                 continue
-            _, u95 = _U95(_U_all(cs, best[3], best[4], zero, best[2]))
+            _, u95 = _U95(_U_all(st, best[3], best[4], zero, best[2]))
             if u95[i] ** 2 <= t2[i]:
                 continue
             alone = np.full(P, math.inf)
             alone[i] = t2[i]
-            b1 = _search(cs, alone, ridge, limit)
+            b1 = _search(st, alone, ridge, limit)
             if b1[0]:
-                _, f95 = _U95(_U_all(cs, b1[3], b1[4], zero, b1[2]))
+                _, f95 = _U95(_U_all(st, b1[3], b1[4], zero, b1[2]))
                 unreachable[p] = {"target": tabs[p], "floor": float(f95[i]),
-                                  "dominant": _dominant_term(cs[0], b1[3], b1[4], i)}  # fmt: skip
+                                  "dominant": _dominant_term(st, b1[3], b1[4], i)}  # fmt: skip
                 t2[i] = math.inf
         if unreachable:
-            best = _search(cs, t2, ridge, limit)
+            best = _search(st, t2, ridge, limit)
     _, _, every, amask, rmask = best
     every = min(int(every), int(amask.sum()))  # (the same anchors; a plan refuses a larger one)
-    u, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+    u, u95 = _U95(_U_all(st, amask, rmask, zero, every))
     pred = dict(zip(c.names, map(float, u)))
     pred95 = dict(zip(c.names, map(float, u95)))
-    cadence = _cadence_table(cs, amask, rmask, zero, t2)
+    cadence = _cadence_table(st, amask, rmask, zero, t2)
     return LBLDesign(
         material, tuple(map(float, c.angles[amask])), tuple(map(float, c.rotations[rmask])),
-        tabs, pred, _hours(c, amask, rmask, every), default, time.perf_counter() - t0,
+        tabs, pred, st.hours(amask, rmask, every), default, time.perf_counter() - t0,
         [p for p in tabs if p not in unreachable and pred95[p] > tabs[p]], pred95, int(every),
         unreachable, cadence, len(cs),
     )  # fmt: skip
 
 
-def _phi(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, every: int,
+def _phi(st: _Stack, amask: NDArray, rmask: NDArray, every: int,
          t2: NDArray) -> float:  # fmt: skip
-    zero = np.zeros(len(cs[0].names))
-    _, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+    zero = np.zeros(st.P)
+    _, u95 = _U95(_U_all(st, amask, rmask, zero, every))
     return float(_objective(u95**2 / 4.0, zero, t2))
 
 
-def _search(cs: list[_LBLCandidates], t2: NDArray, ridge: NDArray, limit: float) -> tuple:
+def _search(st: _Stack, t2: NDArray, ridge: NDArray, limit: float) -> tuple:
     """Every set of rotations x every cadence of :data:`CADENCES` (denser only while the
     targets are missed): greedy angles; the quickest plan that meets every target, else the
     one that comes closest. Returns ``(missed, hours or objective, every, amask, rmask)``."""
-    c = cs[0]
+    c = st.c
     zero = np.zeros(len(c.names))
     best = None
     for k in range(1, len(c.rotations) + 1):
@@ -605,14 +702,14 @@ def _search(cs: list[_LBLCandidates], t2: NDArray, ridge: NDArray, limit: float)
             rmask[list(rsel)] = True
             base, phi0 = None, math.inf
             for every in CADENCES:
-                if base is not None and every and _phi(cs, base, rmask, every, t2) >= phi0:
+                if base is not None and every and _phi(st, base, rmask, every, t2) >= phi0:
                     continue  # this cadence does not help the angles chosen without one
-                amask = _greedy_angles(cs, rmask, t2, ridge, limit, every)
+                amask = _greedy_angles(st, rmask, t2, ridge, limit, every)
                 if not amask.any():
                     continue
-                _, u95 = _U95(_U_all(cs, amask, rmask, zero, every))
+                _, u95 = _U95(_U_all(st, amask, rmask, zero, every))
                 phi = float(_objective(u95**2 / 4.0, zero, t2))
-                h = _hours(c, amask, rmask, every)
+                h = st.hours(amask, rmask, every)
                 cand = (phi > 0, h if phi <= 0 else phi, every, amask, rmask)
                 if best is None or cand[:3] < best[:3]:
                     best = cand
@@ -625,32 +722,29 @@ def _search(cs: list[_LBLCandidates], t2: NDArray, ridge: NDArray, limit: float)
     return best
 
 
-def _dominant_term(c: _LBLCandidates, amask: NDArray, rmask: NDArray, j: int) -> str:
-    sel = amask[:, None] & rmask[None, :]
-    C = np.linalg.inv(c.F[sel].sum(axis=0))
-    vecs, extra, _ = _plan_vectors(c, amask, rmask, 0)
-    names = c.term_names[: c.B.shape[-1]] + extra
-    cols = c.B[sel].sum(axis=0)
-    if vecs:
-        cols = np.concatenate([cols, np.stack(vecs, axis=1)], axis=1)
+def _dominant_term(st: _Stack, amask: NDArray, rmask: NDArray, j: int) -> str:
+    """The systematic term (the plan's own included) that contributes most to parameter
+    ``j``'s u² of the plan on the first design instrument."""
+    _, C, V, names = st.terms(amask, rmask, np.zeros(st.P), 0)
+    keep = np.concatenate([~st.random, np.ones(V.shape[2] - st.random.size, bool)])
     contrib: dict[str, float] = {}
-    for n, v in zip(names, (C @ cols)[j] ** 2):
+    for n, v in zip(np.array(names)[keep], (C[0] @ V[0][:, keep])[j] ** 2):
         base = n.split("[")[0]
         contrib[base] = contrib.get(base, 0.0) + float(v)
     return max(contrib, key=contrib.get) if contrib else "-"
 
 
-def _cadence_table(cs: list[_LBLCandidates], amask: NDArray, rmask: NDArray, ridge: NDArray,
+def _cadence_table(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
                    t2: NDArray) -> dict[str, Any]:  # fmt: skip
     """The designed angles and rotations at every cadence of :data:`CADENCES`: hours, the
     lamp's share, targets met (the choice's evidence, in the plan file)."""
-    c = cs[0]
+    c = st.c
     out = {}
     for every in CADENCES:
         if every > int(amask.sum()):
             continue
-        _, u95 = _U95(_U_all(cs, amask, rmask, ridge, every))
-        out[str(every)] = {"hours": round(_hours(c, amask, rmask, every), 5),
+        _, u95 = _U95(_U_all(st, amask, rmask, ridge, every))
+        out[str(every)] = {"hours": round(st.hours(amask, rmask, every), 5),
                            "targets_met": bool(_objective(u95**2 / 4.0, ridge, t2) <= 0),
                            "U_95": dict(zip(c.names, map(float, u95)))}  # fmt: skip
     return out
@@ -681,13 +775,13 @@ def _precheck(material: str, tg: dict, preset: str, time_limit_h: float | None) 
 
 
 def _greedy_angles(
-    cs: list[_LBLCandidates], rmask: NDArray, t2: NDArray, ridge: NDArray, limit_h: float,
+    st: _Stack, rmask: NDArray, t2: NDArray, ridge: NDArray, limit_h: float,
     every: int = 0,
 ) -> NDArray:  # fmt: skip
     """Forward selection of incidence angles at rotations ``rmask`` with the re-standard
     cadence ``every``, then backward pruning (each target against the U at 95 % over the
     design instruments)."""
-    c = cs[0]
+    c = st.c
     P = len(c.names)
     zero = np.zeros(P)
     amask = np.zeros(len(c.angles), bool)
@@ -695,17 +789,17 @@ def _greedy_angles(
     def phi_of(m: NDArray, rid: NDArray = ridge) -> float:
         if not m.any():
             return math.inf
-        _, u95 = _U95(_U_all(cs, m, rmask, rid, every))
+        _, u95 = _U95(_U_all(st, m, rmask, rid, every))
         return float(_objective(u95**2 / 4.0, zero, t2))
 
     cur = math.inf
     while True:
         best, gain = None, 0.0
-        h0 = _hours(c, amask, rmask, every)
+        h0 = st.hours(amask, rmask, every)
         for a in np.flatnonzero(~amask):
             m = amask.copy()
             m[a] = True
-            h = _hours(c, m, rmask, every)
+            h = st.hours(m, rmask, every)
             if h > limit_h:
                 continue
             ph = phi_of(m)

@@ -216,6 +216,26 @@ def test_lbl_a_drifting_lamp_gets_a_denser_cadence(lbl_cands):
     assert drifting.hours > stable.hours
 
 
+def test_lbl_candidate_sets_on_two_processes_and_the_stacked_prediction():
+    """The candidate campaigns of two design instruments on two forked processes (after the
+    warm-up) give the arrays they give one after the other here; the prediction made on
+    both instruments at once (design_lbl._Stack) is each instrument's own."""
+    from gonio.campaign import design_lbl
+
+    one = design_lbl.candidate_sets("rolled_brass", [None, None], angles_deg=(20.0, 60.0),
+                                    workers=1)  # fmt: skip
+    two = design_lbl.candidate_sets("rolled_brass", [None, None], angles_deg=(20.0, 60.0),
+                                    workers=2)  # fmt: skip
+    for a, b in zip(one, two, strict=True):
+        for name in ("F", "B", "S", "chi2", "jr", "tab2", "ucap"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(one[0].F, one[1].F)  # two instruments
+    am, rm, zero = np.ones(2, bool), np.array([True, False, True]), np.zeros(len(one[0].names))
+    both = design_lbl._Stack(one).u2(am, rm, zero, 1)
+    for k, c in enumerate(one):
+        np.testing.assert_allclose(both[k], design_lbl._u2(c, am, rm, zero, 1), rtol=1e-12)
+
+
 def test_lbl_bad_input_before_the_candidate_campaign():
     from gonio.campaign import design_lbl
 
