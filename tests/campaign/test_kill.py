@@ -23,6 +23,9 @@ import pytest
 
 psutil = pytest.importorskip("psutil")
 
+#: every test here runs several campaigns: started first in a parallel run
+pytestmark = pytest.mark.early
+
 _MAIN = "import sys; from gonio.cli import main; sys.exit(main(sys.argv[1:]))"
 LBL = ["--angles", "20,60", "--rotations", "0,90", "--workers", "2"]
 N_GROUPS_LBL = 6  # 2 x (standard+background) + 2 x 2 rotations
@@ -59,12 +62,15 @@ def _kill_when(args: list[str], out: Path, when, timeout: float = 120.0) -> bool
     t0 = time.monotonic()
     proc = psutil.Process(p.pid)
     children: list = []
+    look = 0.0  # (listing the children reads all of /proc: every 50 ms, not every 2 ms)
     try:
         while p.poll() is None and not when(out, time.monotonic() - t0):
-            try:
-                children = proc.children(recursive=True) or children
-            except psutil.Error:
-                pass
+            if time.monotonic() >= look:
+                try:
+                    children = proc.children(recursive=True) or children
+                except psutil.Error:
+                    pass
+                look = time.monotonic() + 0.05
             assert time.monotonic() - t0 < timeout, "campaign did not reach its kill point"
             time.sleep(0.002)
         if p.poll() is not None:
@@ -115,30 +121,39 @@ def _check_same(ref: Path, out: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def lbl_ref(tmp_path_factory) -> Path:
+def lbl_ref(made_once) -> Path:
     """The uninterrupted LBL run, made once for every test of this module that compares a
-    killed and resumed run with it (the same command and seeds: the same bytes)."""
-    ref = tmp_path_factory.mktemp("lbl") / "ref"
-    subprocess.run(_cmd(LBL, ref), check=True, capture_output=True)
-    return ref
+    killed and resumed run with it (the same command and seeds: the same bytes), in whichever
+    test process asks first."""
+
+    def make(folder: Path) -> None:
+        subprocess.run(_cmd(LBL, folder / "ref"), check=True, capture_output=True)
+
+    return made_once("kill-lbl", make)[0] / "ref"
 
 
 @pytest.fixture(scope="module")
-def cornell_ref(tmp_path_factory) -> tuple[list[str], Path, float]:
+def cornell_ref(made_once) -> tuple[list[str], Path, float]:
     """The Cornell campaign's arguments (its plan file, which every run of the module reads:
     the samples' header names its path), its uninterrupted run (made once, as
     :func:`lbl_ref`) and that run's wall time."""
-    folder = tmp_path_factory.mktemp("cornell")
-    plan = folder / "plan.csv"
-    plan.write_text(PLAN)
-    args = ["--instrument", "cornell", "--plan", str(plan)]
-    ref = folder / "ref"
-    t0 = time.monotonic()
-    subprocess.run(_cmd(args, ref), check=True, capture_output=True)
-    t_ref = time.monotonic() - t0
-    # plan.json names the plan file's path: the same plan, another folder
-    (ref / "plan.json").unlink()
-    return args, ref, t_ref
+
+    def make(folder: Path) -> float:
+        (folder / "plan.csv").write_text(PLAN)
+        t0 = time.monotonic()
+        subprocess.run(_cmd(_cornell_args(folder), folder / "ref"), check=True,
+                       capture_output=True)  # fmt: skip
+        t_ref = time.monotonic() - t0
+        # plan.json names the plan file's path: the same plan, another folder
+        (folder / "ref" / "plan.json").unlink()
+        return t_ref
+
+    folder, t_ref = made_once("kill-cornell", make)
+    return _cornell_args(folder), folder / "ref", t_ref
+
+
+def _cornell_args(folder: Path) -> list[str]:
+    return ["--instrument", "cornell", "--plan", str(folder / "plan.csv")]
 
 
 def _lbl(ref: Path, tmp_path: Path, points: list) -> None:
