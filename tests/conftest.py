@@ -38,12 +38,22 @@ def write_mutated(tmp_path_factory):
     return write
 
 
+def _run_folder(tmp_path_factory) -> Path:
+    """The test run's temporary folder, the same for every pytest-xdist worker (a worker's
+    own folders, popen-gw0, ..., are in it)."""
+    root = tmp_path_factory.getbasetemp()
+    return root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _calibration_cache(tmp_path_factory):
-    """Campaigns keep their calibrations (gonio.campaign.calcache) in the session's folder,
-    never in the user's cache."""
+    """Campaigns keep their calibrations (gonio.campaign.calcache) in the test run's folder,
+    never in the user's cache; one folder for every worker (its entries are written
+    atomically), so an instrument is calibrated once per run, not once per worker."""
     mp = pytest.MonkeyPatch()
-    mp.setenv("GONIO_CACHE_DIR", str(tmp_path_factory.mktemp("gonio-cache")))
+    folder = _run_folder(tmp_path_factory) / "gonio-cache"
+    folder.mkdir(exist_ok=True)
+    mp.setenv("GONIO_CACHE_DIR", str(folder))
     yield
     mp.undo()
 
@@ -64,9 +74,7 @@ def made_once(tmp_path_factory) -> Callable:
     makes it under a file lock in the run's shared temporary folder, the others wait for it
     and read it), for expensive set-up that tests only read, such as an uninterrupted
     campaign that killed and resumed runs are compared with."""
-    root = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        root = root.parent  # (the workers' folders are popen-gw0, ... of one run's folder)
+    root = _run_folder(tmp_path_factory)
 
     def once(name: str, make: Callable[[Path], object]) -> tuple[Path, object]:
         folder, made = root / f"once-{name}", root / f"once-{name}.json"
