@@ -1,6 +1,8 @@
 """``gonio stress`` in its reduced form (a few seconds)."""
 
+import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -39,7 +41,16 @@ def test_no_unexpected_violations_in_these_models(report):
         assert not any(report["models"][name].values()), name
 
 
-def test_known_violations_are_the_documented_ones(report):
+@pytest.fixture(scope="module")
+def untimed():
+    """The two models with documented violations, without the small run's time budget per
+    model (under load it leaves sets unchecked: the energy check found nothing in 0.3 s)."""
+    cfg = dataclasses.replace(stress.SIZES["small"], model_seconds=math.inf)
+    return stress.run(cfg, models=["oren_nayar", "torrance_sparrow"], stages=["models"])
+
+
+def test_known_violations_are_the_documented_ones(untimed):
+    report = untimed
     known = {(k["model"], k["kind"]) for k in report["known"]}
     # eq. 27 negative at forward grazing, documented in spec.known_issues
     assert ("oren_nayar", "negative") in known
