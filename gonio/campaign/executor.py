@@ -282,10 +282,7 @@ class Job:
     ``"side"``
         A job off the pipeline's path that needs only what the workers of the next
         :meth:`~CampaignExecutor.map` inherit (``fn(*needs)``, its inputs given before that
-        map); its output is waited for when a stage needs it. Sent before the first map
-        (with more than one worker) it is begun at once on a process of its own
-        (:meth:`~CampaignExecutor.start`), else a worker of the next map runs it after
-        the map's tasks.
+        map); its output is waited for when a stage needs it.
 
     Parameters
     ----------
@@ -565,7 +562,7 @@ class CampaignExecutor:
             with self.stage(name):
                 prepare()
 
-    def start(self, job: Callable[[], Any], *, nice: bool = True) -> Callable[[], Any]:
+    def start(self, job: Callable[[], Any]) -> Callable[[], Any]:
         """Begin ``job()`` now on a process forked for it (which inherits everything, as
         :meth:`parallel`'s jobs do); returns the function that waits for its result (and
         raises its error). With one worker the job runs here when its result is asked for.
@@ -573,11 +570,8 @@ class CampaignExecutor:
         For a job that needs this process only as it is now, begun before work it need not
         wait for: the lens's calibration (board views and ``cv2.fisheye``, 0.35-0.4 s) on
         the core left idle while this process warms the instrument up for the calibration's
-        other captures (the plot process has loaded matplotlib by then). ``nice``: at
-        :data:`BACKGROUND_NICE` (a job whose result is wanted soon, a pipeline's side job,
-        runs at this process's priority: niced, the budget's direction fields were starved
-        by the capture's workers and the fit, and the budget waited 1.1 s for them). A job
-        still running when the executor ends (an error, an interrupt) is stopped.
+        other captures (the plot process has loaded matplotlib by then). A job still
+        running when the executor ends (an error, an interrupt) is stopped.
         """
         if self.workers == 1:
             return job
@@ -586,8 +580,8 @@ class CampaignExecutor:
 
         self._limit_blas()
         pool = ProcessPoolExecutor(
-            1, mp_context=mp.get_context("fork"),
-            initializer=_init_background if nice else _init_jobs, initargs=([job], os.getpid()),
+            1, mp_context=mp.get_context("fork"), initializer=_init_background,
+            initargs=([job], os.getpid()),
         )  # fmt: skip
         self._stack.callback(_shutdown, pool, stop=True)  # (a no-op once it has ended)
         with forking():
@@ -628,10 +622,7 @@ class CampaignExecutor:
 
         The stages run here, one after the other, in the order given. Before each, every
         other job whose inputs exist is sent on, in the order given: a write to the I/O
-        thread, a side job to a process of its own before the first :meth:`map` (the core
-        this process leaves idle while it prepares the map: the budget's direction fields
-        beside the instrument's warm-up), else to the next map's workers, a plot to
-        :meth:`plot` —
+        thread, a side job to the next :meth:`map`'s workers, a plot to :meth:`plot` —
         beside a ``heavy`` stage only the first of the plots, the rest after it (measured,
         two cores: with both of the fit's plots beside the calibrated instrument's budget,
         ~0.4 s of CPU, the budget took 0.59 s and its own plot was drawn alone after it;
@@ -697,7 +688,6 @@ class _Pipeline:
         self.values = dict(given)
         self.waiting = [j for j in self.jobs if j.kind != "stage"]
         self.writes: dict[str, Any] = {}
-        self.started: dict[str, Callable[[], Any]] = {}  # side jobs begun (their results)
 
     def run(self) -> dict[str, Any]:
         ex = self.ex
@@ -737,14 +727,10 @@ class _Pipeline:
             args = [self.value(n) for n in job.needs]
             if job.kind == "write":
                 self.writes[job.name] = self.ex.background(job.fn, *args)
-            else:  # side: begun now, or the next map's workers run it after its tasks
+            else:  # side: the next map's workers run it after its tasks
                 if self.ex._side is not None or len(job.makes) != 1:
                     raise ValueError(f"side job {job.name!r}: one at a time, making one value")
-                side = functools.partial(job.fn, *args)
-                if self.ex.workers > 1 and not self.ex._mapped:
-                    self.started[job.makes[0]] = self.ex.start(side, nice=False)
-                else:
-                    self.ex._side = side
+                self.ex._side = functools.partial(job.fn, *args)
                 self.values[job.makes[0]] = _PENDING
         self.draw(batch)
 
@@ -756,11 +742,8 @@ class _Pipeline:
     def value(self, name: str) -> Any:
         """A value; a side job's output waited for (run here if no map took it)."""
         if self.values[name] is _PENDING:
-            if name in self.started:
-                self.values[name] = self.started.pop(name)()
-            else:
-                side, self.ex._side = self.ex._side, None
-                self.values[name] = side() if side is not None else self.ex.then_result()
+            side, self.ex._side = self.ex._side, None
+            self.values[name] = side() if side is not None else self.ex.then_result()
         return self.values[name]
 
 
