@@ -29,8 +29,7 @@ needs, what it makes, what kind of work it is) and a campaign's jobs run by
 * **An I/O thread** (:meth:`CampaignExecutor.background`) for the writes that overlap the
   fit (the samples table, the flush of the raw frames to the disk).
 * **A plot process** (:meth:`CampaignExecutor.plot`, :mod:`gonio.campaign.plot_worker`),
-  forked first so that it loads matplotlib on the idle core while the campaign prepares
-  (or adopted: begun by the command before its imports, ``plot_worker.started_early``).
+  forked first so that it loads matplotlib on the idle core while the campaign prepares.
 * **Kernels compiled ahead** (:meth:`CampaignExecutor.compile_ahead`): on an empty numba
   cache (the first campaign after an install) the kernels a campaign will load are
   compiled in groups on forked processes at once, this process compiling one group, into
@@ -367,14 +366,11 @@ class CampaignExecutor:
         stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
         self._blas_modules = len(sys.modules)
         if self.want_plots and self.workers > 1:
-            from gonio.campaign.plot_worker import PlotWorker, adopt, warm_matplotlib
+            from gonio.campaign.plot_worker import PlotWorker, warm_matplotlib
 
-            # one the command began before its imports, else forked first: it loads
-            # matplotlib while this process prepares the instrument
-            self._plotter = adopt()
-            if self._plotter is None:
-                with forking():
-                    self._plotter = PlotWorker(warm_matplotlib)
+            # forked first: it loads matplotlib while this process prepares the instrument
+            with forking():
+                self._plotter = PlotWorker(warm_matplotlib)
             stack.callback(self._plotter.close)
         stack.callback(self._close_pool, cancel=True)
         stack.callback(self._close_io)

@@ -13,25 +13,18 @@ campaign's two plots of the fitted model take the time of the slower one, not of
 The worker is a plain ``multiprocessing`` process with a pipe, not a pool: its parent keeps
 no helper threads, so forking the campaign's pool afterwards stays safe. :meth:`PlotWorker.wait`
 returns when every job sent so far is done and re-raises the first error.
-
-A command that knows it will run such a campaign starts the worker earlier still
-(:func:`started_early`, ``gonio campaign``): forked before the campaign's own imports and
-set-up, matplotlib loads while the one core those use is busy, instead of beside the
-campaign's first stage (on an empty numba cache: beside the two processes compiling the
-kernels); the campaign's executor adopts it (:func:`adopt`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import io
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from gonio.campaign.executor import die_with_parent
 
-__all__ = ["PlotWorker", "adopt", "started_early", "warm_matplotlib"]
+__all__ = ["PlotWorker", "warm_matplotlib"]
 
 
 def warm_matplotlib() -> None:
@@ -93,7 +86,6 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent
     die_with_parent(parent)
     me = os.getpid()
     os.environ["GONIO_NO_NUMBA"] = "1"
-    _one_blas_thread()
     if warm is not None:
         try:
             warm(*warm_args)
@@ -119,16 +111,6 @@ def _serve(conn: Any, warm: Callable[..., None] | None, warm_args: tuple, parent
                     conn.send(res)
                 except OSError:  # the parent went away: finish the children, then end
                     open_ = False
-
-
-def _one_blas_thread() -> None:
-    """numpy's BLAS on one thread here (a worker forked before the executor limited it,
-    :func:`started_early`, inherits numpy's default; the plots' spinning BLAS threads would
-    take processor time from the campaign's processes)."""
-    with contextlib.suppress(Exception):  # (only a limit: the plots draw without it)
-        from threadpoolctl import threadpool_limits
-
-        threadpool_limits(limits=1, user_api="blas")
 
 
 def _fork_jobs(job: tuple, conn: Any, children: dict[Any, int], me: int) -> None:
@@ -244,39 +226,3 @@ class PlotWorker:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
-
-
-#: The worker begun by :func:`started_early`, until a campaign adopts it.
-_EARLY: list[PlotWorker] = []
-
-
-@contextlib.contextmanager
-def started_early(wanted: bool) -> Iterator[None]:
-    """Within the block, a plot worker (warming matplotlib up) forked now when ``wanted``,
-    for the campaign that will run in the block to :func:`adopt`; one not adopted is closed
-    when the block ends.
-
-    For a command that knows before its imports and set-up that its campaign draws its plots
-    in a plot process (``gonio campaign``: plots on, more than one worker): the worker's
-    matplotlib then loads beside them instead of beside the campaign's first stage. (A
-    worker not adopted is killed: it has drawn nothing.)
-    """
-    if wanted and not _EARLY:
-        from gonio.campaign.executor import forking
-
-        with forking():  # (SIGTERM held back until the worker has set its own)
-            _EARLY.append(PlotWorker(warm_matplotlib))
-    try:
-        yield
-    finally:
-        while _EARLY:  # not adopted (no plots after all, or an error before the campaign):
-            w = _EARLY.pop()  # it has drawn nothing, and need not finish its warm-up
-            w._proc.kill()
-            w._proc.join()
-            w._conn.close()
-
-
-def adopt() -> PlotWorker | None:
-    """The worker begun by :func:`started_early` (the caller closes it from now on), or
-    None."""
-    return _EARLY.pop() if _EARLY else None

@@ -394,14 +394,6 @@ def _run_cornell(args) -> int:
     return 0 if s.get("converged", True) else 1
 
 
-def _plot_process(plan, workers: int | None) -> bool:
-    """Whether the LBL campaign of ``plan`` will draw its plots in a plot process (plots on,
-    more than one worker: :func:`gonio.campaign.lbl.run`)."""
-    from gonio.campaign.executor import default_workers
-
-    return bool(plan.plots) and (workers or default_workers(len(plan.theta_i_deg))) > 1
-
-
 def run(args) -> int:
     if args.plot_dpi is not None:  # read by gonio.plots.figures.plot_dpi, in the plot process too
         os.environ["GONIO_PLOT_DPI"] = str(args.plot_dpi)
@@ -413,7 +405,6 @@ def run(args) -> int:
     if args.target:
         raise ValueError("--target: an option of --adaptive (gonio design takes targets too)")
     from gonio import campaign
-    from gonio.campaign.plot_worker import started_early
 
     args.material = args.material or "rolled_brass"
     kw = dict(
@@ -457,10 +448,9 @@ def run(args) -> int:
     plan = campaign.Plan(**kw)
     out = check_output_dir(args.out or f"campaign_{args.material}_seed{args.seed}", "--out")
     check_outputs({"--calibration": args.calibration}, {"--out": out, "--json": args.json})
-    with started_early(_plot_process(plan, args.workers)):  # matplotlib loads meanwhile
-        res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet,
-                           workers=args.workers, overwrite=args.overwrite,
-                           calibration_cache=not args.no_calibration_cache)  # fmt: skip
+    res = campaign.run(plan, out, resume=args.resume, quiet=args.quiet, workers=args.workers,
+                       overwrite=args.overwrite,
+                       calibration_cache=not args.no_calibration_cache)  # fmt: skip
     from gonio.campaign.raw import disk_usage, keep_raw
 
     keep_raw(res.out, args.raw)
