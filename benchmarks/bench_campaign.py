@@ -4,6 +4,9 @@ Usage::
 
     python benchmarks/bench_campaign.py                 # default campaign timing, ideal and
                                                         # realistic (modern) instrument A B A B
+    python benchmarks/bench_campaign.py --first-run     # the first campaign after an install
+                                                        # (numba's and the calibration cache
+                                                        # empty) against a warm one, A B A B
     python benchmarks/bench_campaign.py --ward-table    # every Ward-table material, noise off/on
     python benchmarks/bench_campaign.py --others        # blue paint, plaster, Li-Torrance
     python benchmarks/bench_campaign.py --blue-paint    # only Lafortune's blue paint
@@ -116,11 +119,16 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--presets", default="ideal,modern", help="instrument presets timed side by side"
     )
+    ap.add_argument(
+        "--first-run", action="store_true",
+        help="the last preset's campaign on empty caches (as after an install) against warm",
+    )  # fmt: skip
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     out: dict = {}
     if not (args.ward_table or args.others or args.blue_paint):
-        out["default"] = cold_runs(args.repeat, tuple(args.presets.split(",")))
+        presets = tuple(args.presets.split(","))
+        out["default"] = cold_runs(args.repeat, presets, first_run=args.first_run)
     if args.ward_table:
         names = args.materials.split(",") if args.materials else ward_table_materials(args.latex)
         rows = []
@@ -169,7 +177,9 @@ def main(argv=None) -> int:
     return 0
 
 
-def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> list[dict]:
+def cold_runs(
+    repeat: int, presets: tuple[str, ...] = ("ideal", "modern"), first_run: bool = False
+) -> list[dict]:
     """``gonio campaign --preset P`` in a fresh interpreter, ``repeat`` times for each preset,
     alternating (A B A B): wall clock from the shell's view (start-up, imports and JIT-cache
     loading included) beside the campaign's own total, so start-up = wall − total; then
@@ -179,7 +189,14 @@ def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> li
     scheduler groups a session's processes (Linux autogroup), a loaded machine gives the
     session about the same CPU share however many processes it runs, so there the wall
     ratio follows the CPU ratio and parallel stages gain nothing; on an idle machine they
-    do."""
+    do.
+
+    ``first_run``: the last preset's campaign with the user's caches ("warm", filled by one
+    run not counted) against the same with numba's cache and the calibration cache empty
+    ("first", as after ``pip install .``: ``NUMBA_CACHE_DIR`` and ``GONIO_CACHE_DIR`` set to
+    empty folders), A B A B; the ratios are then the first run's over the warm one's.
+    """
+    import os
     import resource
     import subprocess
 
@@ -190,37 +207,47 @@ def cold_runs(repeat: int, presets: tuple[str, ...] = ("ideal", "modern")) -> li
     # the console script's own entry point (it ends with a quick exit, see console_main)
     code = "from gonio.cli import console_main; console_main()"
     rows = []
+    runs = [(p, p) for p in presets]  # (label, preset)
+    if first_run:
+        runs = [("warm", presets[-1]), ("first", presets[-1])]
+        with tempfile.TemporaryDirectory() as d:  # one run, not counted, fills the caches
+            subprocess.run([sys.executable, "-c", code, "campaign", "--out", f"{d}/out",
+                            "--quiet", "--preset", presets[-1]], check=True, cwd=d)  # fmt: skip
     for k in range(repeat):
-        for preset in presets:
+        for label, preset in runs:
             with tempfile.TemporaryDirectory() as d:
+                env = dict(os.environ)
+                if label == "first":  # empty caches: every kernel compiled, calibration made
+                    env.update(NUMBA_CACHE_DIR=f"{d}/numba", GONIO_CACHE_DIR=f"{d}/gonio")
                 t, c = time.perf_counter(), children_cpu()
                 subprocess.run(
                     [sys.executable, "-c", code, "campaign", "--out", f"{d}/out", "--quiet",
                      "--json", f"{d}/s.json", "--preset", preset],
-                    check=True, cwd=d,
+                    check=True, cwd=d, env=env,
                 )  # fmt: skip
                 wall, cpu = time.perf_counter() - t, children_cpu() - c
                 with open(f"{d}/s.json") as f:
                     summ = json.load(f)
             tim = summ["timings_s"]
-            rows.append({"preset": preset, "run": k, "wall_s": wall, "cpu_s": cpu,
+            rows.append({"preset": label, "run": k, "wall_s": wall, "cpu_s": cpu,
                          "startup_s": wall - tim["total"], "timings_s": tim,
                          "relative_error": summ["relative_error"]})  # fmt: skip
             stages = ", ".join(f"{s} {v:.2f}" for s, v in tim.items())
-            print(f"run {k} {preset}: wall {wall:.2f} s = start-up {wall - tim['total']:.2f} s "
+            print(f"run {k} {label}: wall {wall:.2f} s = start-up {wall - tim['total']:.2f} s "
                   f"+ campaign {tim['total']:.2f} s ({stages}); CPU {cpu:.2f} s",
                   flush=True)  # fmt: skip
-    for preset in presets:
+    labels = [label for label, _ in runs]
+    for preset in labels:
         walls = sorted(r["wall_s"] for r in rows if r["preset"] == preset)
-        print(f"default campaign, preset {preset}, cold, wall clock (s): median "
+        print(f"default campaign, {preset}, wall clock (s): median "
               f"{walls[len(walls) // 2]:.2f}, min {walls[0]:.2f}, max {walls[-1]:.2f}")  # fmt: skip
     for what in ("wall_s", "cpu_s"):  # CPU: the processes' user + system seconds
-        base = [r[what] for r in rows if r["preset"] == presets[0]]
-        for preset in presets[1:]:
+        base = [r[what] for r in rows if r["preset"] == labels[0]]
+        for preset in labels[1:]:
             ratios = sorted(r[what] / b for r, b in
                             zip((r for r in rows if r["preset"] == preset), base))  # fmt: skip
             print(
-                f"{what[:-2]} {preset} / {presets[0]}, pair by pair: "
+                f"{what[:-2]} {preset} / {labels[0]}, pair by pair: "
                 + ", ".join(f"{x:.2f}" for x in ratios)
                 + f"; median {ratios[len(ratios) // 2]:.2f}"
             )
