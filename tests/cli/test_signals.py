@@ -30,7 +30,11 @@ def test_export_bsdf_stopped_by_a_signal_leaves_no_temporary_or_child(tmp_path, 
     slow = tmp_path / "pabopto2bsdf"
     slow.write_text(f"#!/bin/sh\necho $$ > {tmp_path}/child.pid\nexec sleep 60\n")
     slow.chmod(0o755)
+    # (SIGINT as a terminal's foreground process has it: a process started in the background
+    # by a non-interactive shell, as a CI script may start the suite, inherits it ignored)
     script = textwrap.dedent(f"""
+        import signal
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         import gonio.io.radiance as r
         r.radiance_tool = lambda name: {str(slow)!r}
         from gonio.cli import main
