@@ -132,7 +132,7 @@ def _cpu() -> float:
 
 def bench_lbl(
     validate: int = 0, factor: float = 1.0, n_instruments: int = 6, with_default: bool = False,
-    workers: int = 1,
+    workers: int | None = None,
 ) -> None:  # fmt: skip
     from gonio import campaign
     from gonio.campaign import design_lbl
@@ -232,7 +232,7 @@ def main() -> None:
     ap.add_argument("--factor", type=float, default=1.0, help="lbl: targets x default U")
     ap.add_argument("--instruments", type=int, default=6, help="lbl: design instruments")
     ap.add_argument(
-        "--workers", type=int, default=1, help="lbl: processes of the candidate campaigns"
+        "--workers", type=int, default=None, help="lbl: processes of the candidate campaigns"
     )
     ap.add_argument(
         "--with-default",

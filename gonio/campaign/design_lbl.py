@@ -269,31 +269,25 @@ def lbl_candidates(
 
 def candidate_sets(
     material: str, truths: list[Any], *, preset: str = "modern",
-    angles_deg: tuple[float, ...] | None = None, workers: int = 1,
+    angles_deg: tuple[float, ...] | None = None, workers: int | None = None,
 ) -> list[_LBLCandidates]:  # fmt: skip
     """The candidate campaign (:func:`lbl_candidates`) on design instruments 1000, 1001, ...,
-    one per prior model of ``truths`` (None: the material preset's), one after the other
-    here, or on ``workers`` processes.
+    one per prior model of ``truths`` (None: the material preset's), on ``workers``
+    processes (default the machine's cores, at most 4).
 
     The campaigns are independent (each draws from its own seeds, so the result does not
-    depend on ``workers``, tested). With more than one worker they run on processes forked
-    from this one after a warm-up campaign (one angle, one rotation, design instrument
-    1000) has imported the campaign's modules and loaded its compiled kernels, which the
-    processes inherit instead of each loading them again. Measured (rolled brass, six
-    instruments, ``gonio design --instrument lbl --default-u 1.25``): one process 20.2 s
-    of processor time, 20.5 s wall (load average 3.3); two processes 3.9 s in this one
-    (imports, warm-up, search) and 11.7 and 11.5 s in the two children (each campaign
-    about 25 % dearer than one after the other: every process faults in its own working
-    set), a critical path of about 16 s on two idle cores; but on this shared 2-core
-    machine (load average 5-6) two processes took 1.15 times the wall time of one (median
-    of 4 pairs, 1.03-1.74) and 1.12 times the processor time, so one is the default."""
+    depend on ``workers``); they run on processes forked from this one after a warm-up
+    campaign (one angle, one rotation, design instrument 1000) has imported the campaign's
+    modules and loaded its compiled kernels, which the processes then inherit instead of
+    each loading them again (about 2 s of processor time each)."""
     from gonio import campaign
-    from gonio.campaign.executor import CampaignExecutor
+    from gonio.campaign.executor import CampaignExecutor, default_workers
 
     jobs = [functools.partial(lbl_candidates, material, preset=preset, truth=m,
                               design_instrument_seed=1000 + k, angles_deg=angles_deg)
             for k, m in enumerate(truths)]  # fmt: skip
-    with CampaignExecutor(max(1, min(int(workers), len(jobs)))) as ex:
+    n = default_workers(len(jobs), minimum_tasks=2) if workers is None else int(workers)
+    with CampaignExecutor(max(1, min(n, len(jobs)))) as ex:
         if ex.workers > 1:  # the warm-up the forked processes inherit
             plan = campaign.Plan(material=material, preset=preset, plots=False, seed=1000,
                                  instrument_seed=1000, theta_i_deg=(45.0,),
@@ -577,7 +571,7 @@ def design_lbl(
     n_instruments: int = 6,
     candidates: _LBLCandidates | list[_LBLCandidates] | None = None,
     truth: Any = None,
-    workers: int = 1,
+    workers: int | None = None,
 ) -> LBLDesign:
     """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
     parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
