@@ -63,8 +63,14 @@ the captures and their reduction (about 80 %: the samples, their σ, each captur
 residuals), the fit (the Jacobian) and the budget (every term's perturbation). They already
 skip what it does not use (no folder: no raw frames, tables, plots or report files written;
 each instrument's calibration read from the calibration cache) and share nothing else
-between instruments (each has its own calibration, geometry and noise). On two processes
-(:func:`candidate_sets`) they would take about 16 s on two idle cores, but took longer here.
+between instruments (each has its own calibration, geometry and noise). So they run on the
+machine's cores (:func:`candidate_sets`, forked after a warm-up campaign): on the 2-core
+machine with nothing else running (load average 0.6-2.4), three alternating pairs of the
+design alone (rolled brass, ``default_factor=1.25``, six instruments), two processes against
+one: 14.1, 17.2, 16.9 s wall against 20.9, 27.1, 23.3 s (14.6-17.7 s against 21.3-27.6 s for
+the whole process, 24.8-29.1 s of processor time against 21.3-26.8 s). With the machine
+shared (load average 5-6, four pairs) two processes were slower, 1.15 (1.03-1.74) times the
+wall of one: each faults in its own working set (+2 s of system time).
 
 Cadences, each chosen from the budget's terms that depend on it:
 
@@ -273,7 +279,7 @@ def candidate_sets(
 ) -> list[_LBLCandidates]:  # fmt: skip
     """The candidate campaign (:func:`lbl_candidates`) on design instruments 1000, 1001, ...,
     one per prior model of ``truths`` (None: the material preset's), on ``workers``
-    processes (default the machine's cores, at most 4).
+    processes (default the machine's cores, at most 4; the module docstring has the times).
 
     The campaigns are independent (each draws from its own seeds, so the result does not
     depend on ``workers``); they run on processes forked from this one after a warm-up
