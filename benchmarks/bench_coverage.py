@@ -74,6 +74,7 @@ def rows(
 ) -> list[dict[str, Any]]:
     """The matrix's rows as sweep settings (``models``: the family's own model ``default``,
     the ``other`` one, or both)."""
+    wanted = set(models.split(","))
     out = []
     for p in presets:
         if p not in LBL_PRESETS:
@@ -81,7 +82,7 @@ def rows(
         for fam in families:
             mat, other = FAMILIES[fam]
             for model in ("default", other):
-                if ("default" if model == "default" else "other") not in models:
+                if ("default" if model == "default" else "other") not in wanted:
                     continue
                 out.append(
                     {
@@ -261,7 +262,7 @@ def _verdict(campaigns: list[dict[str, Any]], st: dict[str, Any]) -> str:
     plain = [m for m in campaigns if not m.get("misfit", 0)]
     if st["u_rms"] > 3.0 and plain:
         return "LOOSE"
-    if st["hi"] >= 0.95 or not plain:
+    if not plain:  # (here U/rms <= 3 with plain campaigns, so the coverage fell short)
         return "flagged"
     sp = _stats(plain)
     return "flagged" if not sp["determined"] or sp["hi"] >= 0.95 else "SHORT"
