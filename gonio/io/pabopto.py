@@ -570,9 +570,7 @@ def _run_reporting(
     cmd = [radiance_tool(name), *map(str, args[1:])]
     err: list[str] = []
     with tempfile.TemporaryFile() as out:
-        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.PIPE, cwd=cwd)
-        t0 = time.perf_counter()
-        shown = {"step": 0, "t": t0}
+        shown = {"step": 0, "t": 0.0}
         lock = threading.Lock()
 
         def tell() -> None:  # from the reader thread (a new bar) and the waiting loop
@@ -600,8 +598,14 @@ def _run_reporting(
                     tell()
 
         reader = threading.Thread(target=read, daemon=True)
-        reader.start()
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.PIPE, cwd=cwd)
+        # from here on a signal (Ctrl-C, SIGTERM) ends the program through the finally below,
+        # the reader's start included (Thread.start waits for the thread: an interrupt there
+        # left the program running on, unkilled)
         try:
+            t0 = time.perf_counter()
+            shown["t"] = t0
+            reader.start()
             while True:
                 try:
                     left = timeout - (time.perf_counter() - t0)
@@ -616,7 +620,8 @@ def _run_reporting(
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-            reader.join()
+            if reader.ident is not None:  # (started)
+                reader.join()
             proc.stderr.close()  # type: ignore[union-attr]
         if rc != 0:
             text = "".join(err)

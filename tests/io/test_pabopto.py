@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -314,3 +315,34 @@ def test_bsdf_values_read_the_tree_in_the_sample_frame(tmp_path):
         for r in rows
     )
     assert all(-1.0 < r["model_peak"] < 0.0 for r in rows)  # a coarse tree averages the peak
+
+
+def test_a_tool_is_killed_when_an_interrupt_comes_while_its_reader_starts(tmp_path, monkeypatch):
+    """(A KeyboardInterrupt in ``Thread.start``, which waits for the new thread, came before
+    the ``try`` whose ``finally`` kills the tool: the tool ran on after gonio had ended.)"""
+    import os
+    import threading
+
+    from gonio.io import radiance
+
+    slow = tmp_path / "slowtool"
+    slow.write_text(f"#!/bin/sh\necho $$ > {tmp_path}/child.pid\nexec sleep 60\n")
+    slow.chmod(0o755)
+    monkeypatch.setattr(radiance, "radiance_tool", lambda name: str(slow))
+
+    class Interrupted(threading.Thread):
+        def start(self):
+            pid_file = tmp_path / "child.pid"
+            for _ in range(400):  # the tool has started (its pid written)
+                if pid_file.is_file() and pid_file.read_text().strip():
+                    break
+                time.sleep(0.01)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(threading, "Thread", Interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        pabopto._run_reporting(["slowtool"], tmp_path, 60.0, None, 1.0)
+    monkeypatch.undo()
+    pid = int((tmp_path / "child.pid").read_text())
+    with pytest.raises(ProcessLookupError):  # killed and reaped
+        os.kill(pid, 0)
