@@ -188,7 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.n < 1000 or a.repeat < 1 or a.budget <= 0:
         p.error("--n must be >= 1000, --repeat >= 1, --budget > 0")
-    from gonio.cli._common import format_table, write_json
+    from gonio.console import format_table
+    from gonio.io.jsonfile import write_json
 
     r = bench(a.n, a.repeat, a.budget, a.models)
     table = []

@@ -8,6 +8,7 @@ bad input raises :class:`ValueError` naming the argument, the value and what was
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 import numpy as np
@@ -110,3 +111,23 @@ def check_choice(value: Any, name: str, choices) -> Any:
     if value not in choices:
         raise ValueError(f"unknown {name} {value!r}; expected one of {sorted(map(str, choices))}")
     return value
+
+
+#: Most worker processes a command starts: a small multiple of the CPU count (more only adds
+#: memory and start-up time; each process holds its own copy of the instrument).
+WORKERS_PER_CPU = 4
+
+
+def max_workers() -> int:
+    """The most worker processes any command starts (:data:`WORKERS_PER_CPU` per CPU)."""
+    return WORKERS_PER_CPU * (os.cpu_count() or 1)
+
+
+#: Most terms of a model sum (``"lambert + ward + ..."``): the papers' models have 1-3.
+MAX_MODEL_TERMS = 8
+
+
+def check_model_terms(text: str | None, option: str) -> None:
+    """Refuse a model expression of more than :data:`MAX_MODEL_TERMS` terms."""
+    if text is not None and (n := str(text).count("+") + 1) > MAX_MODEL_TERMS:
+        raise ValueError(f"{option}: {n} terms, at most {MAX_MODEL_TERMS} in a model sum")

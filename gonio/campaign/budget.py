@@ -354,7 +354,7 @@ def budget_table(budget: Mapping[str, Any]) -> str:
     Every row but the last is a standard uncertainty (k = 1); the last is the expanded
     uncertainty ``U = k u_c``. An undetermined parameter (its uncertainty ``None`` or not
     finite) reads "undetermined"."""
-    from gonio.cli._common import format_table
+    from gonio.console import format_table
 
     params = budget["params"]
     names = list(params)

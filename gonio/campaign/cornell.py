@@ -87,7 +87,7 @@ PLANS = ("incidence", "incidence_plane", "hemispherical")
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    from gonio.cli._common import to_json
+    from gonio.io.jsonfile import to_json
 
     atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 

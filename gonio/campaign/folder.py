@@ -72,7 +72,7 @@ Frames = list[tuple[np.ndarray, dict[str, Any]]]
 
 
 def write_json(path: Path, obj: Any, durable: bool = True) -> None:
-    from gonio.cli._common import to_json
+    from gonio.io.jsonfile import to_json
 
     atomic_write_bytes(path, (to_json(obj) + "\n").encode(), durable=durable)
 
@@ -370,8 +370,7 @@ def check_settings(
     """The Cornell campaign's :func:`check_out`: refuse to replace the results of other
     settings (``plan.json`` differs from ``settings``, or is not readable, or results without
     one) unless ``overwrite``; a resumed run needs the same settings whatever ``overwrite``."""
-    from gonio.cli._common import to_json
-    from gonio.io.jsonfile import FileFormatError, read_json
+    from gonio.io.jsonfile import FileFormatError, read_json, to_json
 
     new = json.loads(to_json(settings))  # as plan.json will hold it
     pfile = outp / "plan.json"

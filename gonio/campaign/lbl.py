@@ -415,7 +415,7 @@ def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
     """Worker processes: as asked (1 for a user's instrument, which may not fork), else
     :func:`~gonio.campaign.executor.default_workers` for the simulated one."""
     if workers is not None:
-        from gonio.cli._common import max_workers
+        from gonio._validate import max_workers
 
         if not isinstance(workers, int | np.integer) or not 1 <= workers <= max_workers():
             raise ValueError(f"workers {workers!r}: expected an integer in [1, {max_workers()}]")

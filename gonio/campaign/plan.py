@@ -179,7 +179,7 @@ class Plan:
 
         info = _material_info(self.material, truth)  # ValueError listing the presets
         model = self.model or info["model"]
-        from gonio.cli._common import check_model_terms
+        from gonio._validate import check_model_terms
 
         for m in (model, *(self.compare or ())):
             check_model_terms(m, "model")

@@ -273,7 +273,7 @@ def summary_table(summary: Mapping[str, Any]) -> str:
     """The short text report: true vs fitted parameters, each error against the expanded
     uncertainty U (within U or not) beside the statistical pull, the undetermined
     parameters and every warning, counts, the budget, stage times."""
-    from gonio.cli._common import format_table
+    from gonio.console import format_table
 
     rows = []
     truth = _compared(summary)

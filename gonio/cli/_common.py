@@ -1,15 +1,27 @@
-"""Helpers shared by the subcommands: output-path checks, JSON output and table printing."""
+"""Helpers shared by the subcommands: output-path checks, option types and help.
+
+JSON output (:func:`gonio.io.jsonfile.to_json`), the console's tables
+(:func:`gonio.console.format_table`), the worker bound
+and the model-sum bound (:func:`gonio._validate.max_workers`,
+:func:`gonio._validate.check_model_terms`) live with the code they serve and are
+imported here for the subcommands."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+# re-exported for the subcommands (the explicit ``as`` form)
+from gonio._validate import MAX_MODEL_TERMS as MAX_MODEL_TERMS
+from gonio._validate import WORKERS_PER_CPU as WORKERS_PER_CPU
+from gonio._validate import check_model_terms as check_model_terms
+from gonio._validate import max_workers as max_workers
+from gonio.console import format_table as format_table
+from gonio.io.jsonfile import to_json as to_json
+from gonio.io.jsonfile import write_json as write_json
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -32,28 +44,6 @@ class HelpFormatter(argparse.HelpFormatter):
             return text
         shown = " ".join(map(str, d)) if isinstance(d, tuple | list) else "%(default)s"
         return f"{text} (default: {shown})" if text else f"default: {shown}"
-
-
-def _default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"value of type {type(o).__name__} is not JSON serialisable")
-
-
-def to_json(obj: Any) -> str:
-    """``json.dumps`` that understands numpy scalars and arrays and paths."""
-    return json.dumps(obj, indent=2, default=_default, allow_nan=False)
-
-
-def write_json(path: str | os.PathLike, obj: Any) -> Path:
-    """Write ``obj`` as JSON to ``path`` atomically (temporary file + rename)."""
-    from gonio.io.atomic import atomic_write_bytes
-
-    return atomic_write_bytes(path, (to_json(obj) + "\n").encode())
 
 
 def name_value_pairs(items: Sequence[str], option: str, need_value: bool = True) -> dict:
@@ -159,29 +149,9 @@ def int_in(lower: int, upper: int, why: str = ""):
     return parse
 
 
-#: Most worker processes a command starts: a small multiple of the CPU count (more only adds
-#: memory and start-up time; each process holds its own copy of the instrument).
-WORKERS_PER_CPU = 4
-
-
-def max_workers() -> int:
-    """The most worker processes any command starts (:data:`WORKERS_PER_CPU` per CPU)."""
-    return WORKERS_PER_CPU * (os.cpu_count() or 1)
-
-
 def worker_count(text: str) -> int:
     """``argparse`` type of a worker/process count: an integer in [1, :func:`max_workers`]."""
     return int_in(1, max_workers(), f"at most {WORKERS_PER_CPU} per CPU")(text)
-
-
-#: Most terms of a model sum (``"lambert + ward + ..."``): the papers' models have 1-3.
-MAX_MODEL_TERMS = 8
-
-
-def check_model_terms(text: str | None, option: str) -> None:
-    """Refuse a model expression of more than :data:`MAX_MODEL_TERMS` terms."""
-    if text is not None and (n := str(text).count("+") + 1) > MAX_MODEL_TERMS:
-        raise ValueError(f"{option}: {n} terms, at most {MAX_MODEL_TERMS} in a model sum")
 
 
 def check_output_dir(text: str, option: str) -> str:
@@ -250,21 +220,6 @@ def add_json_option(parser) -> None:
     parser.add_argument(
         "--json", metavar="PATH", type=output_file, help="also write the results as JSON to PATH"
     )
-
-
-def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """A plain aligned text table."""
-    cells = [[str(h) for h in headers]] + [[_fmt(c) for c in r] for r in rows]
-    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in cells]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    return "\n".join(lines)
-
-
-def _fmt(c: Any) -> str:
-    if isinstance(c, float | np.floating):
-        return f"{c:.4g}"
-    return str(c)
 
 
 #: library keywords whose option has another name (keyword -> the option's ``dest``)

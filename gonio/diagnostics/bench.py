@@ -278,7 +278,7 @@ def fit_preset(task: Mapping[str, Any], out_dir: str | os.PathLike | None = None
     if out_dir is not None:
         out_dir = Path(out_dir)
         write_samples(samples, out_dir / "samples.csv")
-        from gonio.cli._common import write_json
+        from gonio.io.jsonfile import write_json
 
         write_json(
             out_dir / "fit.json",

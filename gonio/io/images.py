@@ -157,7 +157,7 @@ def _suffix(path: Path) -> str:
 def _metadata_bytes(metadata: dict[str, Any]) -> bytes:
     if not isinstance(metadata, dict):
         raise ValueError(f"metadata must be a dict, got {type(metadata).__name__}")
-    from gonio.cli._common import to_json
+    from gonio.io.jsonfile import to_json
 
     try:
         text = to_json(metadata)

@@ -19,6 +19,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "MAX_DEPTH",
     "FileFormatError",
@@ -32,6 +34,8 @@ __all__ = [
     "read_json",
     "read_toml",
     "require_mapping",
+    "to_json",
+    "write_json",
 ]
 
 #: Deepest nesting of arrays and objects accepted in a file gonio reads back (its own files
@@ -225,3 +229,25 @@ def get_str(
 def get_mapping(doc: Mapping[str, Any], key: str, source: str, *, default: Any = _MISSING) -> Any:
     """An object (a ``dict``)."""
     return get(doc, key, source, dict, default=default, what="an object")
+
+
+def _default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"value of type {type(o).__name__} is not JSON serialisable")
+
+
+def to_json(obj: Any) -> str:
+    """``json.dumps`` that understands numpy scalars and arrays and paths."""
+    return json.dumps(obj, indent=2, default=_default, allow_nan=False)
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> Path:
+    """Write ``obj`` as JSON to ``path`` atomically (temporary file + rename)."""
+    from gonio.io.atomic import atomic_write_bytes
+
+    return atomic_write_bytes(path, (to_json(obj) + "\n").encode())

@@ -198,3 +198,23 @@ def test_get_refuses_a_boolean_for_a_number():
     assert jsonfile.get_number({"x": 2}, "x", "f", lo=0, hi=3) == 2
     with pytest.raises(jsonfile.FileFormatError, match="non-standard number"):
         jsonfile.loads('{"x": NaN}', "f")
+
+
+def test_to_json_writes_numpy_values_and_paths_and_refuses_nan(tmp_path):
+    import json
+    from pathlib import Path
+
+    import numpy as np
+    import pytest
+
+    from gonio.io.jsonfile import read_json, to_json, write_json
+
+    obj = {"a": np.arange(3), "b": np.float32(0.5), "c": np.int64(7), "p": Path("x/y")}
+    assert json.loads(to_json(obj)) == {"a": [0, 1, 2], "b": 0.5, "c": 7, "p": "x/y"}
+    with pytest.raises(ValueError):
+        to_json({"x": float("nan")})
+    with pytest.raises(TypeError, match="set is not JSON serialisable"):
+        to_json({"x": {1, 2}})
+    out = write_json(tmp_path / "o.json", obj)
+    assert read_json(out) == {"a": [0, 1, 2], "b": 0.5, "c": 7, "p": "x/y"}
+    assert [p.name for p in tmp_path.iterdir()] == ["o.json"]  # no temporary left
