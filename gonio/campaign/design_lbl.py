@@ -127,6 +127,7 @@ import functools
 import itertools
 import math
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -169,6 +170,8 @@ class _LBLCandidates:
     material: str
     term_names: list[str]  # B's columns, then the random terms
     expanded: dict[str, float] = dataclasses.field(default_factory=dict)  # the campaign's U
+    # each capture's bracket, {(kind, θi, rotation): [(exposure_s, f_number), ...]}
+    brackets: dict[tuple, list] = dataclasses.field(default_factory=dict)
 
 
 def lbl_candidates(
@@ -269,7 +272,7 @@ def lbl_candidates(
         per_capture(res_w / w).reshape(len(angles), len(rots), P), n_rows,
         {k: float(r.params[k]) for k in names}, preset, material,
         [p.name for p in sysp] + [p.name for p in perts if p.kind == "random"],
-        dict(res.summary["budget"]["expanded"]),
+        dict(res.summary["budget"]["expanded"]), dict(res.brackets or {}),
     )  # fmt: skip
 
 
@@ -349,14 +352,60 @@ class _Stack:
         self.has_lamp = np.array([bool(x.u_lamp) for x in cs])
         self._clocks: dict[tuple, tuple] = {}
         self._hours: dict[tuple, float] = {}
+        self._schedules: dict[tuple, list] = {}
+        self._bracket_parts(cs)
+
+    def _bracket_parts(self, cs: list[_LBLCandidates]) -> None:
+        """Each design instrument's bracket of each candidate capture as the schedule times
+        it (:func:`gonio.simulator.lbl_timing.bracket_s`): its time with its first stop set
+        (``W``), its first and last f-numbers (``F0``, ``FL``), (K, captures)."""
+        from gonio.simulator.lbl_timing import bracket_s
+
+        keys = [("standard", a, None) for a in self.c.angles.tolist()]
+        keys += [("background", a, None) for a in self.c.angles.tolist()]
+        keys += [("measured", a, r) for a in self.c.angles.tolist()
+                 for r in self.c.rotations.tolist()]  # fmt: skip
+        self._cap = {k: i for i, k in enumerate(keys)}
+        self.W, self.F0, self.FL = (np.zeros((self.K, len(keys))) for _ in range(3))
+        for k, x in enumerate(cs):
+            for key, i in self._cap.items():
+                br = x.brackets.get(key)
+                if not br:
+                    raise DesignError(f"candidate campaign {k} without the bracket of {key}")
+                self.W[k, i], _, self.FL[k, i] = bracket_s(br, self.timing)
+                self.F0[k, i] = float(br[0][1])
+
+    def _schedule(self, amask: NDArray, rmask: NDArray) -> list[dict]:
+        """The plan's schedule at three frames a capture, as the campaign's lamp clock
+        (:meth:`gonio.campaign.lbl._SimulatedLBL.clock_s`); once per plan."""
+        key = (amask.tobytes(), rmask.tobytes())
+        if key not in self._schedules:
+            from gonio.simulator.lbl_timing import schedule
+
+            c = self.c
+            self._schedules[key] = schedule(c.angles[amask], c.rotations[rmask], 3, self.timing)
+        return self._schedules[key]
 
     def hours(self, amask: NDArray, rmask: NDArray, every: int = 0) -> float:
+        """The plan's real-instrument hours: the mean over the design instruments of
+        :func:`plan_hours` with each one's brackets (its candidate campaign's), from one
+        schedule of the plan's moves and manual steps and each capture's bracket parts
+        (:meth:`_bracket_parts`; the same hours, tested)."""
         if not amask.any() or not rmask.any():
             return 0.0
         key = (amask.tobytes(), rmask.tobytes(), every)
         if key not in self._hours:
-            c = self.c
-            self._hours[key] = plan_hours(c.angles[amask], c.rotations[rmask], c.preset, every)
+            tm = self.timing
+            sch = self._schedule(amask, rmask)
+            caps = [e for e in sch if e["kind"] != "manual"]
+            idx = np.array([self._cap[(e["kind"], e["theta_i_deg"], e["rotation_deg"])]
+                            for e in caps])  # fmt: skip
+            # the moves and manual steps: the schedule less its captures' own time
+            base = sch[-1]["end_s"] - sum(e["end_s"] - e["start_s"] for e in caps)
+            iris = (self.FL[:, idx[:-1]] != self.F0[:, idx[1:]]).sum(axis=1)
+            t = base + self.W[:, idx].sum(axis=1) + tm.stop_change_s * iris
+            n_a = _n_anchors(int(amask.sum()), int(rmask.sum()), int(every))
+            self._hours[key] = float(np.mean(t + 2.0 * tm.swap_s * n_a)) / 3600.0
         return self._hours[key]
 
     def _lamp(self, amask: NDArray, rmask: NDArray, every: int) -> tuple:
@@ -364,14 +413,13 @@ class _Stack:
         interpolation between the re-measured standards leaves, and the anchors'
         interpolation weights (n_anchors, na, nr); computed once per plan."""
         from gonio.simulator.lbl_effects import LAMP_WARMUP_TAU_S as tau
-        from gonio.simulator.lbl_timing import schedule
 
         key = (amask.tobytes(), rmask.tobytes(), every)
         if key in self._clocks:
             return self._clocks[key]
         angles, rots = self.c.angles[amask], self.c.rotations[rmask]
         clock = {(e["kind"], e["theta_i_deg"], e["rotation_deg"]): e["start_s"]
-                 for e in schedule(angles, rots, 3, self.timing)}  # fmt: skip
+                 for e in self._schedule(amask, rmask)}  # fmt: skip
         tm = np.array([[clock[("measured", a, r)] for r in rots] for a in angles])
         ts = np.array([clock[("standard", a, None)] for a in angles])[:, None] * np.ones(len(rots))
         rel, weights = {}, None
@@ -495,15 +543,20 @@ def _n_anchors(n_angles: int, n_rotations: int, every: int) -> int:
 
 
 def plan_hours(
-    theta_i_deg: Any, rotations_deg: Any, preset: str = "modern", restandard_every: int = 0
+    theta_i_deg: Any, rotations_deg: Any, preset: str = "modern", restandard_every: int = 0,
+    *, brackets: int | Mapping,
 ) -> float:  # fmt: skip
-    """Real-instrument hours of an LBL plan, three frames a capture
-    (:func:`~gonio.simulator.lbl_timing.estimate_run_time`), plus two swaps (sample out,
-    standard in and back) for each re-measured standard."""
+    """Real-instrument hours of an LBL plan
+    (:func:`~gonio.simulator.lbl_timing.estimate_run_time`) with the instrument's
+    ``brackets``: ``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` of every
+    capture of the plan (a campaign's own, :attr:`gonio.campaign.lbl.LBLCampaignResult.
+    brackets`, or the candidate campaign's for a plan of its captures), or a number of
+    frames a capture (1: the least a plan can take); plus two swaps (sample out, standard
+    in and back) for each re-measured standard."""
     from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
 
     timing = TIMINGS["ward1992" if preset == "ward1992" else "modern"]
-    t = estimate_run_time(list(theta_i_deg), list(rotations_deg), 3, timing)["total_s"]
+    t = estimate_run_time(list(theta_i_deg), list(rotations_deg), brackets, timing)["total_s"]
     n_a = _n_anchors(len(theta_i_deg), len(rotations_deg), int(restandard_every))
     return (t + 2.0 * timing.swap_s * n_a) / 3600.0
 
@@ -766,7 +819,8 @@ def _precheck(material: str, tg: dict, preset: str, time_limit_h: float | None) 
             )
     if time_limit_h is not None:
         timing = TIMINGS.get(preset, TIMINGS["modern"])
-        quickest = estimate_run_time([0.0], [0.0], 3, timing)["total_s"] / 3600.0
+        # one frame a capture: the least any bracket takes
+        quickest = estimate_run_time([0.0], [0.0], 1, timing)["total_s"] / 3600.0
         if quickest > time_limit_h:
             raise DesignError(
                 f"time limit {time_limit_h} h: no plan can meet it (one angle at one rotation "

@@ -188,15 +188,36 @@ def _stages(
     summary["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
     if outp is not None:
         results.write_json(outp / "summary.json", summary)
-    return LBLCampaignResult(plan, outp, samples, result, compare, summary, timings, budget)
+    brackets: dict[tuple, list] | None = {}
+    for r in got.get("per_angle") or []:
+        b = r.get("brackets")
+        brackets = None if b is None or brackets is None else {**brackets, **b}
+    return LBLCampaignResult(plan, outp, samples, result, compare, summary, timings, budget,
+                             brackets)  # fmt: skip
 
 
 @dataclass
 class LBLCampaignResult(CampaignResult):
     """:class:`CampaignResult` with the budget
-    (:class:`~gonio.campaign.knowledge.CampaignBudget`: its inputs too)."""
+    (:class:`~gonio.campaign.knowledge.CampaignBudget`: its inputs too) and the brackets
+    the instrument took: ``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` of
+    every standard, background and sample capture, from the frames' metadata (None: an
+    instrument whose frames do not record both), for
+    :func:`gonio.simulator.lbl_timing.schedule`."""
 
     budget: Any = None
+    brackets: dict[tuple, list] | None = None
+
+    def real_instrument_h(self) -> float | None:
+        """The campaign's time on the real instrument (h) with the brackets it took
+        (:func:`gonio.campaign.design_lbl.plan_hours`); None without its brackets."""
+        if self.brackets is None:
+            return None
+        from gonio.campaign.design_lbl import plan_hours
+
+        p = self.plan
+        return plan_hours(p.theta_i_deg, p.rotations_deg, p.preset, p.restandard_every,
+                          brackets=self.brackets)  # fmt: skip
 
 
 def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
@@ -594,7 +615,7 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
     inst, truth_model = worker_state()["inst"], worker_state()["truth"]
     ti = math.radians(th)
     res: dict[str, Any] = {"tables": [], "n_pixels": 0, "n_loaded": 0, "t_capture": 0.0,
-                           "t_load": 0.0, "t_reduce": 0.0}  # fmt: skip
+                           "t_load": 0.0, "t_reduce": 0.0, "brackets": {}}  # fmt: skip
     groups: list[tuple[str, float | None]] = [(group_key(th), None)]
     groups += [(group_key(th, rot), rot) for rot in plan.rotations_deg]
     captured: dict[str, dict[str, Frames]] = {}
@@ -614,6 +635,13 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
         made_by = results.group_record(plan, key, seed, th, rot, shots, truth_model)
         frames, loaded, tc, tio = _take_group(folder, shots, resume, made_by)
         captured[key] = frames
+        for kind, shot in frames.items():  # the brackets taken (their time: lbl_timing)
+            if kind in ("standard", "background", "measured") and res["brackets"] is not None:
+                b = [(m.get("exposure_s"), m.get("f_number")) for _, m in shot]
+                if b and all(isinstance(x, int | float) for pair in b for x in pair):
+                    res["brackets"][(kind, float(th), None if rot is None else float(rot))] = b
+                else:
+                    res["brackets"] = None
         res["n_loaded"] += loaded
         res["t_capture"] += tc
         res["t_load"] += tio
