@@ -1,0 +1,116 @@
+"""The LBL plans' hours from the instrument's own brackets (gonio.campaign.design_lbl,
+gonio.simulator.lbl_timing): a campaign keeps the brackets it took, its hours are those of
+the frames it wrote, and the design's hours of a plan are those of the plan's campaign on
+the design instrument."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
+
+from gonio import campaign
+from gonio.campaign import design_lbl
+from gonio.campaign.design import DesignError
+
+ANGLES, ROTATIONS = (20.0, 40.0, 60.0), (0.0, 90.0)
+
+
+@pytest.fixture(scope="module")
+def cands():
+    """The candidate campaign of rolled brass at three angles and two rotations (modern
+    preset, design instrument 1000)."""
+    return design_lbl.lbl_candidates("rolled_brass", angles_deg=ANGLES, rotations_deg=ROTATIONS)
+
+
+def _side_car_brackets(folder, angles, rotations) -> dict:
+    """``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` read from the raw frames'
+    side-cars a campaign wrote (what its instrument recorded of each frame)."""
+    from gonio.campaign.folder import group_key
+
+    out = {}
+    for th in angles:
+        for kind, rot in [("standard", None), ("background", None)] + [
+            ("measured", r) for r in rotations
+        ]:
+            key = group_key(th, None if kind != "measured" else rot)
+            cars = sorted((folder / "raw" / key).glob(f"{kind}_*.json"))
+            metas = [json.loads(c.read_text()) for c in cars]
+            out[(kind, th, rot)] = [(m["exposure_s"], m["f_number"]) for m in metas]
+    return out
+
+
+def test_a_plans_hours_are_its_campaigns_own(cands, tmp_path):
+    """A plan of some candidate captures (with a re-measured standard), run as its own
+    campaign on the design instrument: the brackets it keeps are the frames it wrote, and
+    its hours from them are the design's hours of that plan; fewer frames than three a
+    capture (rolled brass needs one f-stop for most captures)."""
+    angles, rots, every = (20.0, 60.0), (0.0, 90.0), 1
+    res = campaign.run(
+        campaign.Plan(material="rolled_brass", plots=False, seed=1000, instrument_seed=1000,
+                      theta_i_deg=angles, rotations_deg=rots, restandard_every=every),
+        tmp_path / "c", workers=1,
+    )  # fmt: skip
+    written = _side_car_brackets(tmp_path / "c", angles, rots)
+    assert res.brackets == written
+    assert all(res.brackets[k] == cands.brackets[k] for k in written)  # the same instrument
+    t = TIMINGS["modern"]
+    own = estimate_run_time(angles, rots, written, t)
+    n_anchors = len(rots) * len(angles)  # every angle re-standarded, two swaps each
+    assert res.real_instrument_h() == pytest.approx(
+        (own["total_s"] + 2 * t.swap_s * n_anchors) / 3600, rel=1e-12
+    )
+    st = design_lbl._Stack([cands])
+    am, rm = np.isin(cands.angles, angles), np.isin(cands.rotations, rots)
+    assert st.hours(am, rm, every) == pytest.approx(res.real_instrument_h(), rel=1e-12)
+    assert own["n_frames"] < 3 * own["n_captures"]
+    three = design_lbl.plan_hours(angles, rots, "modern", every, brackets=3)
+    assert res.real_instrument_h() < three
+
+
+def test_design_hours_are_the_mean_over_design_instruments(cands):
+    """The design's hours of every plan (its schedule once, each capture's bracket parts)
+    equal the mean of plan_hours over the design instruments' own brackets; a second
+    instrument whose 60° captures take two more frames each at other stops lengthens them."""
+    slow = {k: (v + [(0.01, 32.0), (0.01, 22.0)] if k[1] == 60.0 else v)
+            for k, v in cands.brackets.items()}  # fmt: skip
+    cs = [cands, dataclasses.replace(cands, brackets=slow)]
+    st = design_lbl._Stack(cs)
+    n = 0
+    for a in range(1, 8):
+        for r in range(1, 4):
+            am = np.array([(a >> i) & 1 for i in range(3)], bool)
+            rm = np.array([(r >> i) & 1 for i in range(2)], bool)
+            for every in (0, 1, 2):
+                want = [design_lbl.plan_hours(cands.angles[am], cands.rotations[rm], "modern",
+                                              every, brackets=x.brackets) for x in cs]  # fmt: skip
+                assert st.hours(am, rm, every) == pytest.approx(np.mean(want), rel=1e-12)
+                assert (want[1] > want[0]) == bool(am[2])
+                n += 1
+    assert n == 63
+
+
+def test_design_refuses_candidates_without_brackets(cands):
+    with pytest.raises(DesignError, match="without the bracket of"):
+        design_lbl._Stack([dataclasses.replace(cands, brackets={})])
+
+
+def test_time_limit_check_before_the_candidates_takes_one_frame_a_capture():
+    """No plan is quicker than one angle at one rotation with one frame a capture: a limit
+    below it is refused before any simulation, one above it is not."""
+    t = TIMINGS["ward1992"]
+    one = estimate_run_time([0.0], [0.0], 1, t)["total_s"] / 3600
+    assert one < estimate_run_time([0.0], [0.0], 3, t)["total_s"] / 3600
+    with pytest.raises(DesignError, match="no plan can meet it"):
+        design_lbl._precheck("rolled_brass", {}, "ward1992", one * 0.999)
+    design_lbl._precheck("rolled_brass", {}, "ward1992", one * 1.001)
+
+
+def test_plan_hours_take_the_brackets():
+    with pytest.raises(TypeError, match="brackets"):
+        design_lbl.plan_hours((20.0,), (0.0,), "modern")  # type: ignore[call-arg]
+    with pytest.raises(ValueError, match="no exposures for capture"):
+        design_lbl.plan_hours((20.0,), (0.0,), "modern", brackets={})
