@@ -168,6 +168,7 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
 
     within = total = met = n_t = met_u = n_u = le_def = 0
     ratios: dict[str, list[float]] = {p: [] for p in r.predicted}
+    hours: dict[str, list[float]] = {"designed": [], "default": []}  # each campaign's own
     for seed in range(n):
         kw = dict(material=r.material, plots=False, seed=seed)
         res = campaign.run(
@@ -175,11 +176,13 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
                           restandard_every=r.restandard_every), None, quiet=True, workers=1,
         )  # fmt: skip
         s = res.summary
+        hours["designed"].append(res.real_instrument_h())
         U, fit, truth = s["budget"]["expanded"], s["fit"], s["truth"]
         dU = None
         if with_default:
-            d = campaign.run(campaign.Plan(**kw), None, quiet=True, workers=1).summary
-            dU = d["budget"]["expanded"]
+            dres = campaign.run(campaign.Plan(**kw), None, quiet=True, workers=1)
+            dU = dres.summary["budget"]["expanded"]
+            hours["default"].append(dres.real_instrument_h())
         for p, up in r.predicted.items():
             total += 1
             within += abs(fit[p] - truth[p]) <= U[p]
@@ -200,6 +203,22 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
           f"{r.hours:.3f} h (default {r.default['hours']:.3f} h: "
           f"{r.hours / r.default['hours']:.2f}):")  # fmt: skip
     print(f"  truth within achieved U: {within}/{total}")
+    from gonio.campaign.design_lbl import plan_hours
+
+    for name, h in hours.items():  # the estimate against each campaign's own brackets
+        if not h:
+            continue
+        h = np.array(h)
+        est = r.hours if name == "designed" else r.default["hours"]
+        angles = r.theta_i_deg if name == "designed" else campaign.Plan().theta_i_deg
+        rots = r.rotations_deg if name == "designed" else (
+            campaign.Plan(material=r.material).resolved().rotations_deg)  # fmt: skip
+        three = plan_hours(angles, rots, "modern",
+                           r.restandard_every if name == "designed" else 0, brackets=3)  # fmt: skip
+        print(f"  {name} plan's hours from each campaign's own brackets: median {np.median(h):.4f}"
+              f" h, range {h.min():.4f}-{h.max():.4f}; the design's estimate {est:.4f} h "
+              f"({est / np.median(h):.3f} x the median), at 3 frames a capture {three:.4f} h "
+              f"({three / np.median(h):.3f} x)")  # fmt: skip
     print(
         f"  achieved / predicted U: median {np.median(q):.3f}, range {q.min():.3f}-"
         f"{q.max():.3f}, within 25 %: {np.sum(np.abs(q - 1) <= 0.25)}/{q.size}"

@@ -4,7 +4,14 @@ The LBL instrument captures the whole reflected hemisphere at once, so its plan 
 incidence angles crossed with a set of sample rotations (:class:`gonio.campaign.plan.Plan`);
 its real-instrument time is :func:`gonio.simulator.lbl_timing.estimate_run_time` of that
 plan (the standard swept over every angle, the background, one sample sweep per rotation,
-the manual swaps and rotations).
+the manual swaps and rotations) with the brackets the instrument chooses (:func:`plan_hours`):
+each capture's, standard and background included, as the candidate campaign on each design
+instrument took it, the hours the mean over the design instruments (:meth:`_Stack.hours`).
+Measured against the default campaign's own brackets (rolled brass, 21 x 3, instruments
+0-9; the design's six design instruments): ``modern`` 230.9 s estimated, 227.1-231.7 s
+taken (mean 230.0); ``ward1992`` 614.0 s estimated, 465.3-692.1 s taken (mean 569.3: its
+instruments' brackets differ, 147-194 frames). At three frames a capture, the estimate
+before, 281.8 s (1.23 times the mean) and 883.6 s (1.55 times; 1.28-1.90 times each).
 
 The prediction is the campaign's budget (:mod:`gonio.campaign.budget`,
 :func:`gonio.campaign.knowledge.campaign_budget`), decomposed by capture: one *candidate
@@ -39,7 +46,9 @@ forward selection of incidence angles (the largest decrease of the logarithmic h
 :mod:`gonio.campaign.design` per second of instrument time), then a backward pass that drops
 angles while every target stays met; the quickest plan that meets every target wins. A target
 no plan meets on its own (searched alone) is reported unreachable, with the lowest U the
-search found for it (its floor) and that plan's dominant term, and not chased. Each plan is
+search found for it (its floor) and that plan's dominant term, and not chased. Where the
+best plan still misses a reachable target, its angles are chosen again with exchanges
+(:func:`_exchange`: one angle swapped or dropped while that lowers the objective). Each plan is
 predicted on every design instrument at once (:class:`_Stack`: the candidates as arrays over
 the instruments; the plan's lamp schedule and hours once per plan, not per instrument).
 
@@ -57,7 +66,9 @@ Time (``gonio design --instrument lbl --default-u 1.25``: rolled brass, six inst
 whole process on a shared 2-core machine, load average 3-6): 25.1 s of processor time,
 median of 4 runs (22.9-26.9), against 28.6 s (27.9-34.0) before, when the search predicted
 each instrument apart (A/B pairs 0.83, 0.78-0.92); 20.5 s wall (20.2 s of processor time) in a
-run whose core was free. The search takes 1.2-2.0 s (it took 6.4 s); the rest is the six
+run whose core was free. The search takes 1.2-2.0 s (it took 6.4 s; with the plans' hours
+from their brackets and the exchanges, 3.2-3.5 s against 2.2-2.8 s on the same six
+candidate sets, three runs each, load average 1.9-2.5); the rest is the six
 candidate campaigns, 2.8-3.9 s of processor time each, and the design uses all they do:
 the captures and their reduction (about 80 %: the samples, their σ, each capture's
 residuals), the fit (the Jacobian) and the budget (every term's perturbation). They already
@@ -85,32 +96,43 @@ Cadences, each chosen from the budget's terms that depend on it:
 * exposure brackets: each capture's bracket is the instrument's automatic one
   (:mod:`gonio.simulator.lbl_exposure`: the f-stops the scene needs), and the budget terms
   that depend on it (the exposure scatter through the bracket's frames, the f-stop table
-  through its stops) are predicted for those brackets. A fixed ``exposures_s`` would need a
-  candidate campaign per bracket; the design does not choose one, and the plan file says
-  ``"exposures_s": "auto"``.
+  through its stops) and the plan's hours (its frames and iris changes) are predicted for
+  those brackets. A fixed ``exposures_s`` would need a candidate campaign per bracket; the
+  design does not choose one, and the plan file says ``"exposures_s": "auto"``. The lamp's
+  terms are predicted on the campaign's lamp clock, which runs at three frames a capture
+  (:meth:`_Stack._schedule`): ahead of the brackets' schedule by up to 54 s (``modern``)
+  and 406 s (``ward1992``) at the default plan's last capture.
 
 The prior is the material preset, or a model (``truth``: the adaptive campaign's pilot fit,
 one per design instrument); a prior range as on Cornell would need one candidate campaign per
 point.
 
 Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_design.py --lbl
---validate 20 --factor F --instruments K``, campaign seed = instrument seed; shared machine):
+--validate 20 --factor F --instruments K``, campaign seed = instrument seed; shared machine,
+load average 2-2.6), with the plans' hours from their brackets; "own" is the hours of each
+validation campaign's own brackets:
 
-* targets 1.25 x the default plan's predicted U, six design instruments: 6 angles x 2
-  rotations, 0.030 h (the default's 21 x 3: 0.078 h); ρd reported unreachable (its floor at
-  95 %, 0.00142, above the target 0.00122). Truth within the achieved U 78/80; achieved /
-  predicted U median 0.98 (0.81-1.30), 79/80 within 25 %; the reachable targets met 58/60
-  (α_x 1.004 and 1.036 times its target on two instruments); ρd's achieved U at or below its
+* targets 1.25 x the default plan's predicted U, six design instruments: 7 angles x 2
+  rotations, 0.0292 h (own 0.0286-0.0292 h, median 0.0291; 0.0325 h at three frames a
+  capture), the default's 21 x 3 0.064 h; ρd reported unreachable (its floor at 95 %,
+  0.00142, above the target 0.00122). Truth within the achieved U 76/80; achieved /
+  predicted U median 0.98 (0.86-1.28), 79/80 within 25 %; the reachable targets met 57/60
+  (α_x 1.02-1.14 times its target on three instruments); ρd's achieved U at or below its
   target 20/20 (the bound was conservative for it).
-* the same with three design instruments: 2 x 2 angles and rotations, 0.018 h; truth within
-  U 76/80, achieved / predicted U median 1.09 (0.85-1.51), 68/80 within 25 %, targets met
-  66/80 (ρd 1.01-1.29 times its target on 8 instruments, α_x 1.00-1.19 on 6): three
-  instruments are too few to bound the spread.
+* the same with three design instruments: 4 angles x 1 rotation, 0.0158 h (own 0.0158-0.0159
+  h; 0.0180 h at three frames); truth within U 78/80, achieved / predicted U median 1.07
+  (0.84-1.71), 65/80 within 25 %, targets met 66/80 (ρd 1.01-1.37 times its target on 12
+  instruments, ρs 1.02-1.04 on 2): three instruments are too few to bound the spread.
 * targets the default plan's predicted U (``--factor 1``), six design instruments: ρd and
-  ρs unreachable (the default plan's own U at 95 % over instruments is 1.45 and 1.22 times
-  its mean), so a plan of one angle at one rotation (0.012 h) for α_x, α_y: reachable targets
-  met 38/40 (α_y 1.01 and 1.13 times its target), truth within U 78/80, achieved / predicted
-  U median 0.97 (0.72-1.39); ρd and ρs 1.24-2.28 times their targets (not chased).
+  ρs unreachable (the default plan's own U at 95 % over instruments is above its mean), so a
+  plan of two angles at one rotation (0.0137 h, own 0.0137 h; 0.0147 h at three frames) for
+  α_x, α_y: reachable targets met 39/40 (α_y 1.05 times its target once), truth within U
+  76/80, achieved / predicted U median 0.99 (0.82-1.23), 80/80 within 25 %; ρd and ρs
+  1.12-1.95 times their targets (not chased).
+
+Before the plans' hours came from their brackets (three frames a capture), the same runs
+chose 6 x 2 (0.030 h; truth within U 78/80, targets met 58/60), 2 x 2 (0.018 h; 76/80,
+66/80) and 1 x 1 (0.012 h; 78/80, 38/40).
 
 References
 ----------
