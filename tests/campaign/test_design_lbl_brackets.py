@@ -114,3 +114,33 @@ def test_plan_hours_take_the_brackets():
         design_lbl.plan_hours((20.0,), (0.0,), "modern")  # type: ignore[call-arg]
     with pytest.raises(ValueError, match="no exposures for capture"):
         design_lbl.plan_hours((20.0,), (0.0,), "modern", brackets={})
+
+
+def test_exchange_swaps_or_drops_an_angle_while_the_objective_falls(cands):
+    """Where the forward selection stops short: one angle swapped for another, or dropped,
+    while that lowers the objective (a stand-in objective here: the plans' φ given), the
+    quicker plan among equals, within the time limit."""
+    st = design_lbl._Stack([cands])
+    rm = np.ones(2, bool)
+    start = np.array([True, True, False])  # 20° and 40°
+    phi = {(1, 1, 0): 1.0, (0, 1, 1): 0.0, (1, 0, 1): 0.0, (0, 1, 0): 0.5, (1, 0, 0): 2.0,
+           (0, 0, 1): 3.0, (1, 1, 1): 0.7}  # fmt: skip
+
+    def phi_of(m):
+        return phi[tuple(int(x) for x in m)]
+
+    got = design_lbl._exchange(st, start, rm, phi_of, np.inf, 0)
+    # two swaps reach φ = 0; the quicker of them is chosen
+    h = {k: st.hours(np.array(k, bool), rm) for k in ((0, 1, 1), (1, 0, 1))}
+    assert tuple(int(x) for x in got) == min(h, key=h.get)
+    # a limit below both: the drop (40° alone, φ 0.5) is the best move within it
+    lim = min(h.values()) * 0.999
+    got = design_lbl._exchange(st, start, rm, phi_of, lim, 0)
+    assert tuple(int(x) for x in got) == (0, 1, 0)
+    # φ the same everywhere: only a quicker plan is taken (here one angle dropped)
+    flat = design_lbl._exchange(st, start, rm, lambda m: 1.0, np.inf, 0)
+    assert flat.sum() == 1 and st.hours(flat, rm) < st.hours(start, rm)
+    # nothing lowers φ nor the hours: the plan is kept
+    one = np.array([True, False, False])
+    kept = design_lbl._exchange(st, one, rm, lambda m: 1.0 if m[0] else 2.0, np.inf, 0)
+    assert np.array_equal(kept, one)
