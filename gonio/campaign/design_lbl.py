@@ -10,8 +10,9 @@ instrument took it, the hours the mean over the design instruments (:meth:`_Stac
 Measured against the default campaign's own brackets (rolled brass, 21 x 3, instruments
 0-9; the design's six design instruments): ``modern`` 230.9 s estimated, 227.1-231.7 s
 taken (mean 230.0); ``ward1992`` 614.0 s estimated, 465.3-692.1 s taken (mean 569.3: its
-instruments' brackets differ, 147-194 frames). At three frames a capture, the estimate
-before, 281.8 s (1.23 times the mean) and 883.6 s (1.55 times; 1.28-1.90 times each).
+instruments' brackets differ, 147-189 frames; 147-194 on the design
+instruments). At three frames a capture, the estimate before, 281.8 s (1.23 times the
+mean) and 883.6 s (1.55 times; 1.28-1.90 times each).
 
 The prediction is the campaign's budget (:mod:`gonio.campaign.budget`,
 :func:`gonio.campaign.knowledge.campaign_budget`), decomposed by capture: one *candidate
