@@ -132,7 +132,7 @@ def _cpu() -> float:
 
 def bench_lbl(
     validate: int = 0, factor: float = 1.0, n_instruments: int = 6, with_default: bool = False,
-    workers: int | None = None,
+    workers: int | None = None, brackets: bool = False,
 ) -> None:  # fmt: skip
     from gonio import campaign
     from gonio.campaign import design_lbl
@@ -144,17 +144,30 @@ def bench_lbl(
         )
         t_base = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), _cpu()
-    cands = design_lbl.candidate_sets("rolled_brass", [None] * n_instruments, workers=workers)
-    t1, c1 = time.perf_counter(), _cpu()
-    r = design_lbl.design_lbl("rolled_brass", default_factor=factor, candidates=cands)
+    if brackets:  # the thresholds' candidate campaigns inside the design (its whole time)
+        r = design_lbl.design_lbl("rolled_brass", default_factor=factor, brackets=True,
+                                  n_instruments=n_instruments, workers=workers)  # fmt: skip
+        t1, c1 = t0, c0
+    else:
+        cands = design_lbl.candidate_sets("rolled_brass", [None] * n_instruments,
+                                          workers=workers)  # fmt: skip
+        t1, c1 = time.perf_counter(), _cpu()
+        r = design_lbl.design_lbl("rolled_brass", default_factor=factor, candidates=cands)
     t2, c2 = time.perf_counter(), _cpu()
     print(r.table())
-    print(
-        f"\ndesign time (s): {n_instruments} candidate campaigns {t1 - t0:.1f} (processor "
-        f"{c1 - c0:.1f}), search {t2 - t1:.2f} (processor {c2 - c1:.2f}), total {t2 - t0:.1f}; "
-        f"the default LBL campaign in this run {t_base:.1f} s (ratio {(t2 - t0) / t_base:.2f}); "
-        f"load average {os.getloadavg()[0]:.1f} (shared machine)"
-    )
+    if brackets:
+        print(
+            f"\ndesign time with the bracket search (s): {t2 - t0:.1f} (processor "
+            f"{c2 - c0:.1f}), {2 * n_instruments} candidate campaigns; the default LBL "
+            f"campaign in this run {t_base:.1f} s; load average {os.getloadavg()[0]:.1f}"
+        )
+    else:
+        print(
+            f"\ndesign time (s): {n_instruments} candidate campaigns {t1 - t0:.1f} (processor "
+            f"{c1 - c0:.1f}), search {t2 - t1:.2f} (processor {c2 - c1:.2f}), total "
+            f"{t2 - t0:.1f}; the default LBL campaign in this run {t_base:.1f} s (ratio "
+            f"{(t2 - t0) / t_base:.2f}); load average {os.getloadavg()[0]:.1f} (shared machine)"
+        )
     if validate:
         validate_lbl(r, validate, with_default)
 
@@ -173,7 +186,9 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
         kw = dict(material=r.material, plots=False, seed=seed)
         res = campaign.run(
             campaign.Plan(**kw, theta_i_deg=r.theta_i_deg, rotations_deg=r.rotations_deg,
-                          restandard_every=r.restandard_every), None, quiet=True, workers=1,
+                          restandard_every=r.restandard_every,
+                          bracket_min_signal_dn=r.bracket_min_signal_dn),
+            None, quiet=True, workers=1,
         )  # fmt: skip
         s = res.summary
         hours["designed"].append(res.real_instrument_h())
@@ -254,13 +269,16 @@ def main() -> None:
         "--workers", type=int, default=None, help="lbl: processes of the candidate campaigns"
     )
     ap.add_argument(
+        "--brackets", action="store_true", help="lbl: the design searches the bracket threshold"
+    )
+    ap.add_argument(
         "--with-default",
         action="store_true",
         help="lbl --validate: the default plan too, on the same instruments",
     )
     a = ap.parse_args()
     if a.lbl:
-        return bench_lbl(a.validate, a.factor, a.instruments, a.with_default, a.workers)
+        return bench_lbl(a.validate, a.factor, a.instruments, a.with_default, a.workers, a.brackets)
     targets = d.parse_targets(a.target or None)
     prior = d.parse_prior(a.prior)
     t0 = time.perf_counter()

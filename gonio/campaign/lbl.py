@@ -582,6 +582,8 @@ class _SimulatedLBL:
                 sub = {**kw, "rng": int(rng.integers(2**62))}
                 frames.append(self.inst.capture(sample, theta_i, phi_i, exposure=e, **sub))
             return frames
+        if self.plan.bracket_min_signal_dn is not None:  # the plan's threshold
+            kw["min_signal_dn"] = self.plan.bracket_min_signal_dn
         return list(self.inst.bracket(sample, theta_i, phi_i, **kw))
 
 

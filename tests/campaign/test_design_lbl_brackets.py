@@ -144,3 +144,134 @@ def test_exchange_swaps_or_drops_an_angle_while_the_objective_falls(cands):
     one = np.array([True, False, False])
     kept = design_lbl._exchange(st, one, rm, lambda m: 1.0 if m[0] else 2.0, np.inf, 0)
     assert np.array_equal(kept, one)
+
+
+# -- the bracket's threshold (gonio design --brackets) ------------------------------------------
+@pytest.mark.parametrize("bad", [0.0, -4.0, float("nan"), float("inf"), True, "16"])
+def test_plan_refuses_a_bad_bracket_threshold(bad):
+    with pytest.raises(ValueError, match="bracket_min_signal_dn"):
+        campaign.Plan(bracket_min_signal_dn=bad).resolved()
+
+
+def test_the_threshold_in_the_plan_its_file_and_its_frames(tmp_path):
+    """Unset, the plan writes what it wrote before the field (plan.json, the raw groups'
+    records); set, it round-trips, a plan file sets it, and the campaign's brackets follow
+    it: 64 DN takes more frames than the instrument's own 16, which an explicit 16 repeats."""
+    from gonio.campaign.plan import read_plan_file
+
+    assert "bracket_min_signal_dn" not in campaign.Plan().resolved().to_dict()
+    p = campaign.Plan(bracket_min_signal_dn=64).resolved()
+    assert p.bracket_min_signal_dn == 64.0
+    assert campaign.Plan.from_dict(p.to_dict()) == p
+    f = tmp_path / "p.json"
+    f.write_text('{"instrument": "lbl", "theta_i_deg": [40], "bracket_min_signal_dn": 4}')
+    assert read_plan_file(f)["bracket_min_signal_dn"] == 4.0
+    f.write_text('{"instrument": "lbl", "theta_i_deg": [40], "bracket_min_signal_dn": "x"}')
+    with pytest.raises(ValueError, match="expected a number of DN"):
+        read_plan_file(f)
+    frames = {}
+    for dn in (None, 16.0, 64.0):
+        res = campaign.run(
+            campaign.Plan(material="rolled_brass", plots=False, theta_i_deg=(20.0, 60.0),
+                          rotations_deg=(0.0,), bracket_min_signal_dn=dn), None, workers=1,
+        )  # fmt: skip
+        frames[dn] = res.brackets
+    assert frames[16.0] == frames[None]
+    n = {dn: sum(len(v) for v in b.values()) for dn, b in frames.items()}
+    assert n[64.0] > n[16.0]
+
+
+@pytest.fixture(scope="module")
+def cands_by_dn(cands):
+    """The candidate campaign of :func:`cands` at the thresholds ``brackets=True`` tries."""
+    out = {16.0: [cands]}
+    for dn in (4.0, 64.0):
+        c = design_lbl.lbl_candidates(
+            "rolled_brass", angles_deg=ANGLES, rotations_deg=ROTATIONS, min_signal_dn=dn
+        )
+        out[dn] = [c]
+    return out
+
+
+def test_bracket_search_tries_the_next_threshold(cands_by_dn, tmp_path):
+    """Targets the 16 DN design meets: 4 DN is tried (fewer frames) with its own candidate
+    campaign, the plan that misses fewer targets then the quicker is chosen, and its plan
+    file carries the threshold."""
+    from gonio.campaign.plan import read_plan_file
+
+    r = design_lbl.design_lbl("rolled_brass", default_factor=1.5, candidates=cands_by_dn,
+                              brackets=True)  # fmt: skip
+    assert set(r.brackets_tried) == {"16", "4"}
+    t16, t4 = r.brackets_tried["16"], r.brackets_tried["4"]
+    score = {dn: (len(t["not_met"]) + len(t["unreachable"]), t["hours"]) for dn, t in
+             (("16", t16), ("4", t4))}  # fmt: skip
+    chosen = "4" if score["4"] < score["16"] else "16"
+    assert r.bracket_min_signal_dn == (4.0 if chosen == "4" else None)
+    assert r.hours == pytest.approx(r.brackets_tried[chosen]["hours"])
+    path = tmp_path / "plan.json"
+    design_lbl.write_lbl_plan(path, r)
+    kw = read_plan_file(path)
+    assert kw.get("bracket_min_signal_dn") == r.bracket_min_signal_dn
+
+
+def test_a_thresholds_prediction_is_its_campaigns(cands_by_dn):
+    """A plan of some candidate captures at 4 and 64 DN, run as its own campaign on the
+    design instrument at that threshold: the brackets differ from the 16 DN ones, and the
+    U (1 %) and hours are those predicted from that threshold's candidate campaign."""
+    angles, rots = (20.0, 60.0), (0.0,)
+    am, rm = np.isin(ANGLES, angles), np.isin(ROTATIONS, rots)
+    for dn in (4.0, 64.0):
+        c = cands_by_dn[dn][0]
+        res = campaign.run(
+            campaign.Plan(material="rolled_brass", plots=False, seed=1000, instrument_seed=1000,
+                          theta_i_deg=angles, rotations_deg=rots, bracket_min_signal_dn=dn),
+            None, workers=1,
+        )  # fmt: skip
+        assert res.brackets == {k: v for k, v in c.brackets.items() if k in res.brackets}
+        assert (
+            res.brackets[("measured", 60.0, 0.0)]
+            != cands_by_dn[16.0][0].brackets[("measured", 60.0, 0.0)]
+        )
+        pred = 2 * np.sqrt(design_lbl._u2(c, am, rm, np.zeros(len(c.names))))
+        got = [res.summary["budget"]["expanded"][p] for p in c.names]
+        np.testing.assert_allclose(got, pred, rtol=0.01)
+        h = design_lbl._Stack([c]).hours(am, rm)
+        assert res.real_instrument_h() == pytest.approx(h, rel=1e-12)
+
+
+def test_bracket_search_refuses_mismatched_candidates(cands, cands_by_dn):
+    with pytest.raises(DesignError, match="go with brackets=True"):
+        design_lbl.design_lbl("rolled_brass", default_factor=1.5, candidates=cands_by_dn)
+    with pytest.raises(DesignError, match="go with brackets=True"):
+        design_lbl.design_lbl("rolled_brass", default_factor=1.5, candidates=[cands],
+                              brackets=True)  # fmt: skip
+    with pytest.raises(DesignError, match="no candidate sets at the bracket threshold 4 DN"):
+        design_lbl.design_lbl("rolled_brass", default_factor=1.5, candidates={16.0: [cands]},
+                              brackets=True)  # fmt: skip
+
+
+def test_bracket_search_tries_64_dn_where_a_reachable_target_is_missed(cands_by_dn):
+    """A 16 DN design that misses a target it chased: 64 DN is tried (more frames), with the
+    same targets; the plan that misses fewer targets wins even if slower."""
+    d16 = design_lbl.design_lbl(
+        "rolled_brass", default_factor=1.5, candidates=[cands_by_dn[16.0][0]]
+    )
+    missed = dataclasses.replace(d16, not_met=["alpha_x"])
+    calls = []
+
+    def sets(dn):
+        calls.append(dn)
+        return cands_by_dn[dn]
+
+    r = design_lbl._design_brackets(missed, sets, None, 0.0, 0.0)
+    assert calls == [64.0] and set(r.brackets_tried) == {"16", "64"}
+    assert r.brackets_tried["16"]["not_met"] == ["alpha_x"]
+    t64 = r.brackets_tried["64"]
+    # (here 64 DN meets every target: chosen, though slower than the 16 DN plan)
+    assert (
+        not t64["not_met"]
+        and not t64["unreachable"]
+        and t64["hours"] > r.brackets_tried["16"]["hours"]
+    )
+    assert r.bracket_min_signal_dn == 64.0 and r.theta_i_deg == tuple(t64["theta_i_deg"])
+    assert r.targets == d16.targets and r.default == d16.default
