@@ -639,10 +639,12 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
         captured[key] = frames
         for kind, shot in frames.items():  # the brackets taken (their time: lbl_timing)
             if kind in ("standard", "background", "measured") and res["brackets"] is not None:
-                b = [(m.get("exposure_s"), m.get("f_number")) for _, m in shot]
-                if b and all(isinstance(x, int | float) for pair in b for x in pair):
-                    res["brackets"][(kind, float(th), None if rot is None else float(rot))] = b
-                else:
+                from gonio.simulator.lbl_timing import brackets_of
+
+                key_ = (kind, float(th), None if rot is None else float(rot))
+                try:
+                    res["brackets"].update(brackets_of({key_: [m for _, m in shot]}))
+                except ValueError:  # an instrument whose frames do not record both
                     res["brackets"] = None
         res["n_loaded"] += loaded
         res["t_capture"] += tc
