@@ -132,7 +132,7 @@ def _cpu() -> float:
 
 def bench_lbl(
     validate: int = 0, factor: float = 1.0, n_instruments: int = 6, with_default: bool = False,
-    workers: int | None = None,
+    workers: int | None = None, brackets: bool = False,
 ) -> None:  # fmt: skip
     from gonio import campaign
     from gonio.campaign import design_lbl
@@ -144,17 +144,30 @@ def bench_lbl(
         )
         t_base = time.perf_counter() - t0
     t0, c0 = time.perf_counter(), _cpu()
-    cands = design_lbl.candidate_sets("rolled_brass", [None] * n_instruments, workers=workers)
-    t1, c1 = time.perf_counter(), _cpu()
-    r = design_lbl.design_lbl("rolled_brass", default_factor=factor, candidates=cands)
+    if brackets:  # the thresholds' candidate campaigns inside the design (its whole time)
+        r = design_lbl.design_lbl("rolled_brass", default_factor=factor, brackets=True,
+                                  n_instruments=n_instruments, workers=workers)  # fmt: skip
+        t1, c1 = t0, c0
+    else:
+        cands = design_lbl.candidate_sets("rolled_brass", [None] * n_instruments,
+                                          workers=workers)  # fmt: skip
+        t1, c1 = time.perf_counter(), _cpu()
+        r = design_lbl.design_lbl("rolled_brass", default_factor=factor, candidates=cands)
     t2, c2 = time.perf_counter(), _cpu()
     print(r.table())
-    print(
-        f"\ndesign time (s): {n_instruments} candidate campaigns {t1 - t0:.1f} (processor "
-        f"{c1 - c0:.1f}), search {t2 - t1:.2f} (processor {c2 - c1:.2f}), total {t2 - t0:.1f}; "
-        f"the default LBL campaign in this run {t_base:.1f} s (ratio {(t2 - t0) / t_base:.2f}); "
-        f"load average {os.getloadavg()[0]:.1f} (shared machine)"
-    )
+    if brackets:
+        print(
+            f"\ndesign time with the bracket search (s): {t2 - t0:.1f} (processor "
+            f"{c2 - c0:.1f}), {2 * n_instruments} candidate campaigns; the default LBL "
+            f"campaign in this run {t_base:.1f} s; load average {os.getloadavg()[0]:.1f}"
+        )
+    else:
+        print(
+            f"\ndesign time (s): {n_instruments} candidate campaigns {t1 - t0:.1f} (processor "
+            f"{c1 - c0:.1f}), search {t2 - t1:.2f} (processor {c2 - c1:.2f}), total "
+            f"{t2 - t0:.1f}; the default LBL campaign in this run {t_base:.1f} s (ratio "
+            f"{(t2 - t0) / t_base:.2f}); load average {os.getloadavg()[0]:.1f} (shared machine)"
+        )
     if validate:
         validate_lbl(r, validate, with_default)
 
@@ -168,18 +181,23 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
 
     within = total = met = n_t = met_u = n_u = le_def = 0
     ratios: dict[str, list[float]] = {p: [] for p in r.predicted}
+    hours: dict[str, list[float]] = {"designed": [], "default": []}  # each campaign's own
     for seed in range(n):
         kw = dict(material=r.material, plots=False, seed=seed)
         res = campaign.run(
             campaign.Plan(**kw, theta_i_deg=r.theta_i_deg, rotations_deg=r.rotations_deg,
-                          restandard_every=r.restandard_every), None, quiet=True, workers=1,
+                          restandard_every=r.restandard_every,
+                          bracket_min_signal_dn=r.bracket_min_signal_dn),
+            None, quiet=True, workers=1,
         )  # fmt: skip
         s = res.summary
+        hours["designed"].append(res.real_instrument_h())
         U, fit, truth = s["budget"]["expanded"], s["fit"], s["truth"]
         dU = None
         if with_default:
-            d = campaign.run(campaign.Plan(**kw), None, quiet=True, workers=1).summary
-            dU = d["budget"]["expanded"]
+            dres = campaign.run(campaign.Plan(**kw), None, quiet=True, workers=1)
+            dU = dres.summary["budget"]["expanded"]
+            hours["default"].append(dres.real_instrument_h())
         for p, up in r.predicted.items():
             total += 1
             within += abs(fit[p] - truth[p]) <= U[p]
@@ -200,6 +218,22 @@ def validate_lbl(r, n: int, with_default: bool = False) -> None:
           f"{r.hours:.3f} h (default {r.default['hours']:.3f} h: "
           f"{r.hours / r.default['hours']:.2f}):")  # fmt: skip
     print(f"  truth within achieved U: {within}/{total}")
+    from gonio.campaign.design_lbl import plan_hours
+
+    for name, h in hours.items():  # the estimate against each campaign's own brackets
+        if not h:
+            continue
+        h = np.array(h)
+        est = r.hours if name == "designed" else r.default["hours"]
+        angles = r.theta_i_deg if name == "designed" else campaign.Plan().theta_i_deg
+        rots = r.rotations_deg if name == "designed" else (
+            campaign.Plan(material=r.material).resolved().rotations_deg)  # fmt: skip
+        three = plan_hours(angles, rots, "modern",
+                           r.restandard_every if name == "designed" else 0, brackets=3)  # fmt: skip
+        print(f"  {name} plan's hours from each campaign's own brackets: median {np.median(h):.4f}"
+              f" h, range {h.min():.4f}-{h.max():.4f}; the design's estimate {est:.4f} h "
+              f"({est / np.median(h):.3f} x the median), at 3 frames a capture {three:.4f} h "
+              f"({three / np.median(h):.3f} x)")  # fmt: skip
     print(
         f"  achieved / predicted U: median {np.median(q):.3f}, range {q.min():.3f}-"
         f"{q.max():.3f}, within 25 %: {np.sum(np.abs(q - 1) <= 0.25)}/{q.size}"
@@ -235,13 +269,16 @@ def main() -> None:
         "--workers", type=int, default=None, help="lbl: processes of the candidate campaigns"
     )
     ap.add_argument(
+        "--brackets", action="store_true", help="lbl: the design searches the bracket threshold"
+    )
+    ap.add_argument(
         "--with-default",
         action="store_true",
         help="lbl --validate: the default plan too, on the same instruments",
     )
     a = ap.parse_args()
     if a.lbl:
-        return bench_lbl(a.validate, a.factor, a.instruments, a.with_default, a.workers)
+        return bench_lbl(a.validate, a.factor, a.instruments, a.with_default, a.workers, a.brackets)
     targets = d.parse_targets(a.target or None)
     prior = d.parse_prior(a.prior)
     t0 = time.perf_counter()

@@ -188,9 +188,11 @@ for row in sweep.rows:
 # the manual steps (swapping the standard, the empty holder and the sample, rotating the
 # sample by hand), with the ``"modern"`` build's assumed speeds. The frames of each capture
 # are read from the side-cars the campaign wrote (the automatic bracket decides how many a
-# capture needs).
+# capture needs, and at which f-stops: the iris is changed wherever the next frame's stop
+# differs from the one set).
 def bracket_exposures(folder: Path, plan: campaign.Plan) -> dict:
-    """``{(kind, θi, rotation): [exposure_s, ...]}`` of every capture, from its side-cars."""
+    """``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` of every capture, from its
+    side-cars."""
     out = {}
     for th in plan.theta_i_deg:
         groups = [("standard", None), ("background", None)]
@@ -198,7 +200,8 @@ def bracket_exposures(folder: Path, plan: campaign.Plan) -> dict:
         for kind, rot in groups:
             key = group_key(th, None if kind != "measured" else rot)
             cars = sorted((folder / "raw" / key).glob(f"{kind}_*.json"))
-            out[(kind, th, rot)] = [json.loads(c.read_text())["exposure_s"] for c in cars]
+            metas = [json.loads(c.read_text()) for c in cars]
+            out[(kind, th, rot)] = [(m["exposure_s"], m["f_number"]) for m in metas]
     return out
 
 

@@ -85,8 +85,10 @@ print(tight.unreachable)
 # any subset of those captures: the terms a plan changes beyond its captures' sum (the
 # exposure scatter of its brackets, the f-stop table's over its stops, the lamp over its own
 # schedule, the fit's χ²/dof) included, to 0.1 % of what that plan's campaign on the same
-# instrument reports. What it cannot know is which instrument will measure: the ``U (95 %)``
-# column is the U at 95 % over the design instruments (a Student prediction bound from them),
+# instrument reports; and its hours from the brackets the instrument chose for those
+# captures (their frames and iris changes), as that campaign's own. What it cannot know is
+# which instrument will measure: the ``U (95 %)`` column is the U at 95 % over the design
+# instruments (a Student prediction bound from them),
 # and the targets are met by it; ``designed U`` is their mean. ``gonio design --instrument
 # lbl --default-u 1`` takes the default plan's 21 angles as the candidates on six design
 # instruments (``--design-instruments K`` for another number; about 20-25 s on two cores).
@@ -119,8 +121,9 @@ print(lbl_file.read_text())
 # instrument: a short pilot (Cornell: two incidence-plane scans; LBL: three angles at every
 # other default rotation), a fit, the design from the pilot's estimate (on LBL the design
 # instruments' candidate campaigns at the estimate and at its shape parameters ± their U),
-# then the designed plan; ``OUT/adaptive.json`` gives each stage's hours and the final U
-# against the targets.
+# then the designed plan; ``OUT/adaptive.json`` gives each stage's hours (the pilot's and
+# the main campaign's from the brackets their instrument took, the design's predicted) and
+# the final U against the targets.
 
 # %%
 # The temporary folder (the plan files written above) is removed at the end, so that running

@@ -207,6 +207,17 @@ def _lbl_prior(res: Any) -> list[Any]:
     return out
 
 
+def _hours_taken(res: Any) -> float:
+    """A campaign's real-instrument hours with the brackets its instrument took
+    (:meth:`gonio.campaign.lbl.LBLCampaignResult.real_instrument_h`)."""
+    from gonio.campaign.design import DesignError
+
+    h = res.real_instrument_h()
+    if h is None:
+        raise DesignError("the campaign's frames do not record their exposure and f-number")
+    return float(h)
+
+
 def adaptive_lbl(
     material: str,
     targets: dict[str, tuple[float, bool]] | None,
@@ -224,7 +235,9 @@ def adaptive_lbl(
     instruments' candidate campaigns made at the pilot's estimate and at its shape
     parameters ± their U, :func:`_lbl_prior`), then the designed plan (``out/main``, its
     plan file ``out/designed_plan.json``); the summary (also ``out/adaptive.json``) as
-    :func:`adaptive_cornell`'s. The final U is the main campaign's alone.
+    :func:`adaptive_cornell`'s, the pilot's and the main campaign's hours those of the
+    brackets their instrument took (:func:`_hours_taken`), the design's its prediction
+    (the candidate campaigns' brackets). The final U is the main campaign's alone.
     ``n_instruments`` (1-10) design instruments (the k-th at the k-th prior modulo 3),
     ``candidate_angles_deg`` the design's candidate incidence angles (default the default
     plan's)."""
@@ -245,7 +258,7 @@ def adaptive_lbl(
     t0 = time.perf_counter()
     pilot = campaign.run(campaign.Plan(theta_i_deg=LBL_PILOT_ANGLES, rotations_deg=rots, **kw),
                          outp / "pilot", quiet=True)  # fmt: skip
-    h_pilot = design_lbl.plan_hours(LBL_PILOT_ANGLES, rots, preset)
+    h_pilot = _hours_taken(pilot)
     stages["pilot"] = {"n_angles": len(LBL_PILOT_ANGLES), "n_rotations": len(rots),
                        "wall_s": time.perf_counter() - t0,
                        "real_instrument_h": h_pilot}  # fmt: skip
@@ -277,7 +290,7 @@ def adaptive_lbl(
     )  # fmt: skip
     stages["main"] = {"n_angles": len(res.theta_i_deg), "n_rotations": len(res.rotations_deg),
                       "wall_s": time.perf_counter() - t2,
-                      "real_instrument_h": res.hours}  # fmt: skip
+                      "real_instrument_h": _hours_taken(main)}  # fmt: skip
     U, fit, truth = (main.summary["budget"]["expanded"], main.summary["fit"],
                      main.summary.get("truth", {}))  # fmt: skip
     final = {

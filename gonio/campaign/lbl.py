@@ -188,15 +188,36 @@ def _stages(
     summary["timings_s"] = {k: round(v, 4) for k, v in timings.items()}
     if outp is not None:
         results.write_json(outp / "summary.json", summary)
-    return LBLCampaignResult(plan, outp, samples, result, compare, summary, timings, budget)
+    brackets: dict[tuple, list] | None = {}
+    for r in got.get("per_angle") or []:
+        b = r.get("brackets")
+        brackets = None if b is None or brackets is None else {**brackets, **b}
+    return LBLCampaignResult(plan, outp, samples, result, compare, summary, timings, budget,
+                             brackets)  # fmt: skip
 
 
 @dataclass
 class LBLCampaignResult(CampaignResult):
     """:class:`CampaignResult` with the budget
-    (:class:`~gonio.campaign.knowledge.CampaignBudget`: its inputs too)."""
+    (:class:`~gonio.campaign.knowledge.CampaignBudget`: its inputs too) and the brackets
+    the instrument took: ``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` of
+    every standard, background and sample capture, from the frames' metadata (None: an
+    instrument whose frames do not record both), for
+    :func:`gonio.simulator.lbl_timing.schedule`."""
 
     budget: Any = None
+    brackets: dict[tuple, list] | None = None
+
+    def real_instrument_h(self) -> float | None:
+        """The campaign's time on the real instrument (h) with the brackets it took
+        (:func:`gonio.campaign.design_lbl.plan_hours`); None without its brackets."""
+        if self.brackets is None:
+            return None
+        from gonio.campaign.design_lbl import plan_hours
+
+        p = self.plan
+        return plan_hours(p.theta_i_deg, p.rotations_deg, p.preset, p.restandard_every,
+                          brackets=self.brackets)  # fmt: skip
 
 
 def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
@@ -561,6 +582,8 @@ class _SimulatedLBL:
                 sub = {**kw, "rng": int(rng.integers(2**62))}
                 frames.append(self.inst.capture(sample, theta_i, phi_i, exposure=e, **sub))
             return frames
+        if self.plan.bracket_min_signal_dn is not None:  # the plan's threshold
+            kw["min_signal_dn"] = self.plan.bracket_min_signal_dn
         return list(self.inst.bracket(sample, theta_i, phi_i, **kw))
 
 
@@ -594,7 +617,7 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
     inst, truth_model = worker_state()["inst"], worker_state()["truth"]
     ti = math.radians(th)
     res: dict[str, Any] = {"tables": [], "n_pixels": 0, "n_loaded": 0, "t_capture": 0.0,
-                           "t_load": 0.0, "t_reduce": 0.0}  # fmt: skip
+                           "t_load": 0.0, "t_reduce": 0.0, "brackets": {}}  # fmt: skip
     groups: list[tuple[str, float | None]] = [(group_key(th), None)]
     groups += [(group_key(th, rot), rot) for rot in plan.rotations_deg]
     captured: dict[str, dict[str, Frames]] = {}
@@ -614,6 +637,15 @@ def _incidence(plan: Plan, th: float, raw: Path | None, resume: bool) -> dict[st
         made_by = results.group_record(plan, key, seed, th, rot, shots, truth_model)
         frames, loaded, tc, tio = _take_group(folder, shots, resume, made_by)
         captured[key] = frames
+        for kind, shot in frames.items():  # the brackets taken (their time: lbl_timing)
+            if kind in ("standard", "background", "measured") and res["brackets"] is not None:
+                from gonio.simulator.lbl_timing import brackets_of
+
+                key_ = (kind, float(th), None if rot is None else float(rot))
+                try:
+                    res["brackets"].update(brackets_of({key_: [m for _, m in shot]}))
+                except ValueError:  # an instrument whose frames do not record both
+                    res["brackets"] = None
         res["n_loaded"] += loaded
         res["t_capture"] += tc
         res["t_load"] += tio

@@ -144,6 +144,12 @@ class Plan:
         correction (:func:`gonio.campaign.knowledge.correct_drift`) divides each sample
         capture by it, interpolated in time. 0 (default): no re-measurement. Each
         re-measurement adds two manual swaps to the real instrument's run time.
+    bracket_min_signal_dn : float, optional
+        The automatic bracket's threshold (:meth:`gonio.simulator.lbl.LBLInstrument.
+        plan_bracket` ``min_signal_dn``): a wider stop is kept only if it brings a lit pixel
+        at least this many DN above the background that no kept stop covered. None
+        (default): the instrument's own, 16 DN. Higher takes more frames a capture (each
+        pixel from a brighter frame), lower fewer (``gonio design --brackets`` chooses it).
     """
 
     material: str = "rolled_brass"
@@ -168,6 +174,7 @@ class Plan:
     corrections: tuple[str, ...] | None = None
     calibration: str | None = None
     restandard_every: int = 0
+    bracket_min_signal_dn: float | None = None
 
     def resolved(self, truth: Any = None) -> Plan:
         """The plan with defaults filled in and every field validated.
@@ -235,6 +242,15 @@ class Plan:
                 f"restandard_every {n_re!r}: expected an integer in [0, {len(angles)}] "
                 "(0: no re-measured standard)"
             )
+        dn = self.bracket_min_signal_dn
+        if dn is not None:
+            ok = isinstance(dn, int | float | np.integer | np.floating) and not isinstance(dn, bool)
+            if not (ok and math.isfinite(dn) and dn > 0):
+                raise ValueError(
+                    f"bracket_min_signal_dn {dn!r}: expected a positive number of DN "
+                    "(None: the instrument's own)"
+                )
+            dn = float(dn)
         preset, instrument_seed, binning = self._resolved_instrument()
         return replace(
             self,
@@ -253,6 +269,7 @@ class Plan:
             debias=bool(self.debias),
             corrections=corrections,
             restandard_every=int(n_re),
+            bracket_min_signal_dn=dn,
         )
 
     def _resolved_rotations(self, params: Mapping[str, Any], model: str) -> tuple[float, ...]:
@@ -327,8 +344,11 @@ class Plan:
         return self.preset, int(iseed), b
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (tuples as lists)."""
+        """JSON-ready dict (tuples as lists); ``bracket_min_signal_dn`` only where set (a plan
+        without it writes what it wrote before the field, and resumes the folders made then)."""
         d = asdict(self)
+        if d["bracket_min_signal_dn"] is None:
+            del d["bracket_min_signal_dn"]
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
     @classmethod
@@ -398,7 +418,9 @@ def capture_seed(seed: int, key: str) -> int:
 
 #: the fields an LBL plan file may set (the measurement's design; everything else stays the
 #: command line's)
-PLAN_FILE_FIELDS = ("theta_i_deg", "rotations_deg", "exposures_s", "restandard_every")
+PLAN_FILE_FIELDS = (
+    "theta_i_deg", "rotations_deg", "exposures_s", "restandard_every", "bracket_min_signal_dn",
+)  # fmt: skip
 
 
 def read_plan_file(path: Any) -> dict[str, Any]:
@@ -430,6 +452,11 @@ def read_plan_file(path: Any) -> dict[str, Any]:
             if not isinstance(v, int) or isinstance(v, bool):
                 raise ValueError(f"plan file {str(p)!r}: {k} {v!r}: expected an integer")
             out[k] = v
+            continue
+        if k == "bracket_min_signal_dn":
+            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
+                raise ValueError(f"plan file {str(p)!r}: {k} {v!r}: expected a number of DN")
+            out[k] = float(v)
             continue
         if (
             not isinstance(v, list)
