@@ -43,6 +43,7 @@ __all__ = [
     "estimate_run_time",
     "hemispherical_plan",
     "incidence_plane_plan",
+    "measurement_seconds",
     "n_rereferences",
     "order_plan",
     "read_plan_csv",
@@ -393,6 +394,28 @@ def n_rereferences(n_measurements: int, reference_every: int) -> int:
     if every == 0 or n_measurements <= 0:
         return 0
     return -(-int(n_measurements) // every)
+
+
+def measurement_seconds(
+    plan: Plan,
+    timing: Timing | None = None,
+    integration_s: ArrayLike | None = None,
+    *,
+    start: ArrayLike = (0.0, 0.0, 0.0),
+) -> NDArray[np.float64]:
+    """Real-instrument time (s) of each reachable row in the plan's order: its move from the
+    previous row (``start`` for the first) and its reads, as in :func:`estimate_run_time`
+    (whose total without references is their sum): the campaign's schedule."""
+    timing = timing or Timing()
+    p = plan.measurable()
+    n = len(p)
+    t_int = (np.full(n, timing.default_integration_s) if integration_s is None
+             else np.asarray(integration_s, dtype=np.float64).ravel())  # fmt: skip
+    if t_int.shape != (n,) or np.any(t_int <= 0) or not np.isfinite(t_int).all():
+        raise ValueError(f"integration_s must hold {n} positive times (one per reachable row)")
+    path = np.concatenate([np.asarray(start, float)[None], p.angles])
+    per = timing.settle_s + timing.preview_s + timing.read_overhead_s + timing.polarizer_change_s
+    return timing.move_time(np.diff(path, axis=0)) + per + 4.0 * (t_int + timing.read_overhead_s)
 
 
 def estimate_run_time(

@@ -719,7 +719,7 @@ def _stages(
                 )  # fmt: skip
             else:
                 samples, ref_obj, t_int, extra = _measure_in_process(setup)
-        extra.update(_run_time_estimate(setup.plan, samples, t_int))
+        extra.update(_run_time_estimate(setup, samples, t_int, ref_obj))
         if setup.fx is not None:
             with ex.stage("correct"):
                 samples = _apply_corrections(setup, samples, ref_obj, extra)
@@ -983,15 +983,26 @@ def _stray_correction(setup: _Setup) -> float:
     return _nominal(setup.knowledge, "stray_light_fraction")
 
 
-def _drift_summary(p: Any, res: dict) -> dict[str, Any]:
+def _reference_s(ref: Any, cfg: Any) -> float:
+    """Real-instrument time of one re-measured reference like ``ref`` (its integration
+    time) on the configuration ``cfg``."""
+    from gonio.simulator.cornell_plans import Timing, reference_seconds
+
+    return reference_seconds(Timing(), float(ref.meta.get("t", 1.0)), cfg.n_reference_reads)
+
+
+def _drift_summary(p: Any, res: dict, cfg: Any) -> dict[str, Any]:
     """``n_references`` and ``reference_drift`` (hours, mean rate / the first's) of a
     campaign through the drivers, its references placed in time by the run-time estimate
-    (the laboratory's clock: geometries measured x the estimated time per geometry)."""
+    (the laboratory's clock: geometries measured x the estimated time per geometry, plus
+    the earlier re-measured references' time,
+    :func:`gonio.simulator.cornell_plans.reference_seconds`)."""
     from gonio.simulator.cornell import _reference_drift
     from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
     per_s = estimate_run_time(p, Timing(), res["t"])["per_measurement_s"]
-    refs = [(count * per_s, ref) for count, ref in res["references"]]
+    ref_s = _reference_s(res["reference"], cfg)
+    refs = [(count * per_s + k * ref_s, ref) for k, (count, ref) in enumerate(res["references"])]
     return {"n_references": len(refs), "reference_drift": _reference_drift(refs)}
 
 
@@ -1063,7 +1074,7 @@ def _measure_through_drivers(
         extra["device_reads"] = rig.n_reads
         extra["device_moves"] = rig.n_moves
     if setup.reference_every:
-        extra.update(_drift_summary(p, res))
+        extra.update(_drift_summary(p, res, setup.lab))
     sig = res["sigma"] if setup.noise else np.full_like(res["sigma"], np.nan)
     samples = _samples_from(
         np.radians(res["positions_deg"]), res["value"], sig, setup.lab.kinematics, setup.meta
@@ -1075,17 +1086,20 @@ def _measure_through_drivers(
     return samples, res["reference"], res["t"], extra
 
 
-def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, Any]:
-    """What the real instrument would take for the plan (summary fields)."""
+def _run_time_estimate(setup: _Setup, samples: BRDFSamples, t_int: Any, ref: Any) -> dict[str, Any]:
+    """What the real instrument would take for the plan, its re-measured references
+    included (summary fields)."""
     from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
+    p = setup.plan
     extra: dict[str, Any] = {}
+    kw = {"reference_every": setup.reference_every, "reference_s": _reference_s(ref, setup.lab)}
     if t_int is None:
-        est = estimate_run_time(p, Timing(), None)
+        est = estimate_run_time(p, Timing(), None, **kw)
         est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
         est["total_u_h"] = float(samples.metadata.get("estimated_run_time_u_h", est["total_u_h"]))
     else:
-        est = estimate_run_time(p, Timing(), t_int)
+        est = estimate_run_time(p, Timing(), t_int, **kw)
         est_h = float(est["total_h"])
         extra["estimated_real_instrument_breakdown_h"] = {
             k: round(est[k] / 3600.0, 3) for k in ("move_s", "integration_s", "overhead_s")
