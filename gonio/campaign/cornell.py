@@ -78,6 +78,7 @@ __all__ = [
     "identifiability_scan",
     "main",
     "offset_sensitivity",
+    "plan_file_reference_every",
     "reference_band_error",
     "run_cornell_campaign",
     "stray_offset_error",
@@ -90,6 +91,42 @@ def _write_json(path: Path, obj: Any) -> None:
     from gonio.io.jsonfile import to_json
 
     atomic_write_bytes(path, (to_json(obj) + "\n").encode())
+
+
+#: the header line ``gonio design`` writes at the top of a Cornell plan file (a JSON object)
+PLAN_HEADER = "# gonio design:"
+#: what plan files written before the design chose the cadence hold (the campaign's default)
+_LEGACY_CADENCE = "the campaign's (not designed)"
+
+
+def plan_file_reference_every(path: str | os.PathLike) -> int | None:
+    """The reference cadence a Cornell plan file carries (``reference_every`` of its
+    ``# gonio design: {...}`` line, :func:`gonio.campaign.design.write_cornell_plan`): an
+    integer >= 0, or None when the file has no such line or field (or the text earlier
+    versions wrote there, :data:`_LEGACY_CADENCE`): the campaign's default applies.
+    ``ValueError`` naming the file and the field for anything else (a negative number, a
+    fraction, a string, a line that is not JSON)."""
+    import json
+
+    with open(path, encoding="utf-8-sig") as f:
+        head = next((ln for ln in f if ln.startswith(PLAN_HEADER)), None)
+    if head is None:
+        return None
+    try:
+        fields = json.loads(head[len(PLAN_HEADER) :])
+    except ValueError as exc:
+        raise ValueError(f"{path}: its '{PLAN_HEADER}' line is not a JSON object ({exc})") from None
+    if not isinstance(fields, dict):
+        raise ValueError(f"{path}: its '{PLAN_HEADER}' line is not a JSON object")
+    v = fields.get("reference_every")
+    if v is None or v == _LEGACY_CADENCE:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise ValueError(
+            f"{path}: reference_every = {v!r} in its '{PLAN_HEADER}' line: expected an "
+            "integer >= 0 (re-measure the reference after every N geometries; 0: once)"
+        )
+    return v
 
 
 def build_plan(
@@ -653,7 +690,8 @@ def run_cornell_campaign(
         (``"cornell2005"``, the default realistic instrument, or ``"ideal"``), realised with
         ``instrument_seed`` (default ``seed``), or a mapping of magnitudes, or None (ideal).
     reference_every : int, optional
-        Re-measure the standard after every N geometries (default 40 for a non-ideal
+        Re-measure the standard after every N geometries (default: the plan file's
+        ``reference_every`` (:func:`plan_file_reference_every`), else 40 for a non-ideal
         instrument, 0 = once at the start), in-process and through the drivers.
     corrections : dict, optional
         The laboratory's corrections, each ablatable (:data:`DEFAULT_CORRECTIONS`):
@@ -859,6 +897,15 @@ def _prepare(
         knowledge = (lab_knowledge(effects) if is_preset(effects)
                      else {k: (float(v), 0.0) for k, v in fx.items() if v})  # fmt: skip
     corr = _check_corrections(corrections)
+    if isinstance(plan, str | os.PathLike) and str(plan) not in PLANS and Path(plan).is_file():
+        in_file = plan_file_reference_every(plan)  # the design's cadence
+        if in_file is not None:
+            if reference_every is not None and reference_every != in_file:
+                raise ValueError(
+                    f"reference_every = {reference_every!r} and the plan file's "
+                    f"reference_every = {in_file}: give one (the plan file's is the design's)"
+                )
+            reference_every = in_file
     every = (40 if fx is not None else 0) if reference_every is None else reference_every
     if int(every) != every or every < 0:
         raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")

@@ -104,6 +104,14 @@ class DesignError(ValueError):
     """An input a design cannot be made from (names what was wrong)."""
 
 
+class _NothingReachable(DesignError):
+    """Every target lies below its floor at a cadence (``unreachable``: their floors)."""
+
+    def __init__(self, unreachable: dict[str, dict[str, Any]]) -> None:
+        super().__init__("every target lies below its floor")
+        self.unreachable = unreachable
+
+
 # ----------------------------------------------------------------------------- inputs
 def parse_targets(items: list[str] | None) -> dict[str, tuple[float, bool]]:
     """``["k_fs=5%", "tau=0.01"]`` → ``{"k_fs": (0.05, True), "tau": (0.01, False)}``
@@ -794,14 +802,26 @@ def design_cornell(
     best: DesignResult | None = None
     tried: list[dict[str, Any]] = []
     n_guess = max(2 * n_min, 10)
+    n_last: int | None = None  # the last designed plan's geometries
+    below: dict[str, dict[str, Any]] = {}
     for every in CADENCES if c.knowledge else (0,):
+        if every and n_last is not None and n_last < 2 * every:
+            continue  # fewer than three references: the data sheet's term, as with none
         try:
             r = _design_at(c, tabs, every, n_guess, time_limit_h, max_steps, margin, refine,
                            material, compare_default)  # fmt: skip
+        except _NothingReachable as exc:
+            below = exc.unreachable
+            tried.append({"reference_every": every, "targets_missed": len(tabs),
+                          "every_target_below_its_floor": True})  # fmt: skip
+            if any(u["dominant"] == "lamp_drift" for u in below.values()):
+                continue  # denser references lower the floor
+            break
         except DesignError:
             if best is None:  # the sparsest cadence's failure: a denser one takes longer
                 raise
             break
+        n_last = len(r.plan)
         missed = [p for p, t in tabs.items() if r.predicted[p]["U"] > t]
         r.meta["missed"] = missed
         tried.append({"reference_every": every, "n_geometries": len(r.plan), "hours": r.hours,
@@ -809,12 +829,17 @@ def design_cornell(
         if best is None or (len(missed), r.hours) < (len(best.meta["missed"]), best.hours):
             best = r
         n_guess = max(n_guess, len(r.plan))
-        # a denser cadence only while targets are missed, and only if the lamp's term is
-        # a material part of a missed target's uncertainty (and the target lies above what
-        # no cadence removes)
-        if not any(_lamp_matters(r, p) for p in missed):
+        # a denser cadence only while the lamp's term is a material part of a target's
+        # uncertainty (a missed target above what no cadence removes: a denser cadence may
+        # meet it; a met one: may need fewer geometries); the best kept
+        if not any(_lamp_matters(r, p) for p in tabs):
             break
-    assert best is not None
+    if best is None:
+        p, u = next(iter(below.items()))
+        raise DesignError(
+            f"every target lies below its floor at every reference cadence tried (e.g. {p}: "
+            f"target {u['target']:.3g} < floor {u['floor']:.3g}, {u['dominant']})"
+        )
     best.meta.pop("missed", None)
     best.meta["cadences_tried"] = tried
     best.design_s = time.perf_counter() - t0
@@ -822,9 +847,9 @@ def design_cornell(
 
 
 def _lamp_matters(r: DesignResult, p: str) -> bool:
-    """Whether denser references could help parameter ``p`` of ``r`` reach its target: the
-    lamp's term is at least 30 % of its combined uncertainty and, if unreachable, the
-    lamp is its floor's dominant term."""
+    """Whether denser references could help parameter ``p`` of ``r`` (reach its target, or
+    reach it with fewer geometries): the lamp's term is at least 30 % of its combined
+    uncertainty and, if unreachable, the lamp is its floor's dominant term."""
     if p in r.unreachable and r.unreachable[p]["dominant"] != "lamp_drift":
         return False
     e = r.predicted[p]
@@ -860,6 +885,8 @@ def _design_at(
         lamp_terms = {**c.const_terms, "lamp_drift": lamp * kval}
         const = np.sqrt(sum(v**2 for v in lamp_terms.values()))
         t2, unreachable = _reachable(c, tabs, const, lamp_terms)
+        if not np.isfinite(t2).any():
+            raise _NothingReachable(unreachable)
         t2 *= (1.0 - margin) ** 2  # aim below the target: the achieved U scatters about it
         if t2_search is not None:  # the earlier rounds' tightened targets kept
             t2 = np.where(np.isfinite(t2), np.minimum(t2, t2_search), np.inf)
@@ -1138,8 +1165,9 @@ def _default_prediction(c: _Candidates) -> dict[str, Any]:
 
 def write_cornell_plan(path: Any, result: DesignResult) -> None:
     """The designed plan as a Cornell plan CSV (``theta_i, phi_i, theta_o, phi_o`` in degrees,
-    the campaign's ``--plan FILE``), with the design's figures in ``#`` comment lines; written
-    atomically."""
+    the campaign's ``--plan FILE``), with the design's figures in a ``# gonio design: {...}``
+    comment line — among them the designed ``reference_every``, which the campaign applies
+    (``gonio.campaign.cornell.plan_file_reference_every``); written atomically."""
     import json
 
     from gonio.geometry import to_spherical
