@@ -35,19 +35,53 @@ band's coefficients and the shared shape parameters), until every reachable targ
 the time limit is spent; then a backward pass drops geometries whose removal keeps every
 target met, the slowest first.
 
-The reference cadence is not chosen by the design, and the plan file does not carry one
-(the campaign's default applies: the reference again after every 40 geometries with a
-realistic preset). The budget's term that depends on it is the lamp's
-(``gonio.campaign.cornell_budget._lamp_u``): with three references or more, the leave-one-out
-residual of their linear interpolation *measured* from the campaign's own references (a Type
-A evaluation that no prediction made before the measurement supplies); with fewer, the data
-sheet's warm-up and drift over the plan's hours, which the prediction already has from the
-plan's time. And the run-time model (:func:`gonio.simulator.cornell_plans.estimate_run_time`)
-gives a reference measurement no time, so a denser cadence costs nothing there: a cadence
-chosen from those two would be invented, not designed.
+The reference cadence (``reference_every``: the white reference measured again after every
+N geometries and after the last, the campaign's drift correction interpolating between them)
+is chosen too, among :data:`CADENCES`, sparsest first. Its cost is the references' time
+(:func:`gonio.simulator.cornell_plans.reference_seconds`, the campaign's lamp clock; in the
+search each geometry carries its share ``reference_s / N``, and the hours are
+:func:`~gonio.simulator.cornell_plans.estimate_run_time` with the references, which equals
+the campaign's clock). Its benefit is the budget's lamp term
+(``gonio.campaign.cornell_budget._lamp_u``), predicted by :func:`predicted_lamp_u` from the
+data sheet's warm-up and drift alone: the warm-up's curvature that the interpolation leaves
+at the references of the plan's schedule plus their read noise, evaluated as the campaign
+evaluates its own (the leave-one-out residual of three references or more; the data sheet's
+bound over the campaign's hours with fewer). A relative scale of every reading moves each
+coefficient k by the same relative amount and no shape parameter, so the search takes the
+lamp term as a floor of the k's, first for a guessed schedule, then for the plan it found;
+the prediction passes it to the budget (``cornell_budget(..., lamp_u=...)``). A denser
+cadence is tried only while the lamp term is at least 30 % of some target's uncertainty (a
+cadence whose plan would get fewer than three references is skipped: the same term as
+none, more time); the design keeps the cadence with the fewest missed targets, then the
+least time, and writes it into the plan file, which the campaign applies. The prediction
+against campaigns (``benchmarks/bench_design.py --lamp-table 5``: the default plan, 212
+geometries, garnet red paint, instruments 0-4; the campaigns' term is the budget's, from
+their own references; RMS over the instruments, min-max):
+
+========  ======  ===========  =======================  ====================  =====================
+lamp      every   hours        predicted                campaigns' RMS        min - max
+========  ======  ===========  =======================  ====================  =====================
+default   160     0.675        1.47e-3                  1.26e-3               1.02e-3 - 1.55e-3
+default   40      0.745        3.56e-4                  3.25e-4               2.55e-4 - 3.82e-4
+default   10      1.027        6.8e-5                   7.0e-5                5.72e-5 - 8.65e-5
+default   none    0.639        3.52e-3                  3.52e-3               3.51e-3 - 3.52e-3
+5 x       160     0.675        7.34e-3                  6.36e-3               5.09e-3 - 7.78e-3
+5 x       40      0.745        1.77e-3                  1.56e-3               1.24e-3 - 1.96e-3
+5 x       10      1.027        2.63e-4                  2.31e-4               1.86e-4 - 2.81e-4
+5 x       none    0.639        1.76e-2                  1.76e-2               1.76e-2 - 1.76e-2
+========  ======  ===========  =======================  ====================  =====================
+
+(5 x: the warm-up and drift, typical and spread, five times cornell2005's, ``--lamp 5``.) The
+prediction is 0.97-1.17 times the campaigns' RMS; the RMS over instruments of the warm-up is
+used, so a single instrument's term scatters about it (0.69-1.05 times the prediction at
+every 160, three references). The search's guess of the schedule can leave it measuring more geometries at a
+sparse cadence where fewer geometries at a denser one would be quicker (``k_dd[20]=0.65%``
+on garnet: the 13 x 13 candidates gave 143 geometries with references every 40 on the
+3 x 3 grid); the cadences it tried are in ``meta["cadences_tried"]``.
 
 Measured (garnet red paint, cornell2005, every parameter at 5 %, the default 13 x 13 grid:
-1186 candidates): a 5-geometry plan of 0.028 h (the default plan: 0.63 h, k_fs at ~25 %;
+1186 candidates): a 5-geometry plan of 0.029 h, the first reference only (the default plan:
+0.74 h with its references every 40, k_fs at ~25 %;
 the hemispherical plan: 11.4 h) run on instruments 0-19: the truth within the achieved U for
 1878/1900 parameters, achieved / predicted U 0.86-1.16 (median 1.003), every target met
 (1880/1880). A prediction holds for the model it is made with: so few geometries leave
