@@ -20,6 +20,14 @@ campaign timed in the same run (the issue asks for at most 20 s).
 times the default plan's predicted U) on N instruments, with the default plan on the same
 instruments if asked.
 
+``--lamp F``: the cornell2005 instrument with a lamp F times less stable (its warm-up and
+drift, typical and spread, times F) for the design and its campaigns.
+
+``--lamp-table N``: the lamp term the design predicts for the default plan
+(:func:`gonio.campaign.design.predicted_lamp_u`, from the laboratory's knowledge) at the
+cadences 160, 40, 10 and 0 (first reference only), beside the term the campaign's budget
+evaluates from its own references on instruments 0..N-1 (their RMS, min and max).
+
 ``--validate N``: the designed plan run on N instruments (seeds 0..N-1 of the preset, noise
 seeds the same): the fraction of parameters whose truth lies within the achieved U, the ratio
 achieved / predicted U, and the targets met.
@@ -28,11 +36,13 @@ achieved / predicted U, and the targets met.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -40,11 +50,13 @@ from gonio.campaign import design as d
 from gonio.campaign.cornell import run_cornell_campaign
 
 
-def _time_design(material: str, targets: dict, prior: dict) -> tuple[d.DesignResult, dict]:
+def _time_design(
+    material: str, targets: dict, prior: dict, preset: Any = "cornell2005"
+) -> tuple[d.DesignResult, dict]:
     t0 = time.perf_counter()
-    c = d.cornell_candidates(material, prior=prior)
+    c = d.cornell_candidates(material, prior=prior, preset=preset)
     t1 = time.perf_counter()
-    r = d.design_cornell(material, targets, candidates=c, prior=prior)
+    r = d.design_cornell(material, targets, candidates=c, prior=prior, preset=preset)
     t2 = time.perf_counter()
     return r, {"candidates_s": t1 - t0, "search_and_prediction_s": t2 - t1, "total_s": t2 - t0}
 
@@ -100,13 +112,60 @@ def table(
         )
 
 
-def validate(r: d.DesignResult, n: int, folder: Path) -> None:
+def lamp_preset(factor: float) -> Any:
+    """cornell2005 with the lamp's warm-up and drift (typical and spread) times ``factor``
+    (the preset's name itself for 1)."""
+    from gonio.simulator.cornell_effects import PRESETS
+
+    if factor == 1.0:
+        return "cornell2005"
+    out = dict(PRESETS["cornell2005"])
+    for k in ("lamp_warmup", "lamp_drift"):
+        out[k] = dataclasses.replace(out[k], typical=out[k].typical * factor,
+                                     spread=out[k].spread * factor)  # fmt: skip
+    return out
+
+
+def lamp_table(material: str, preset: Any, n: int) -> None:
+    """Predicted lamp term of the default plan against the campaigns' (module docstring)."""
+    from gonio.simulator.cornell import CornellConfig
+    from gonio.simulator.cornell_effects import lab_knowledge
+
+    from gonio.campaign.cornell import _check_corrections
+    from gonio.campaign.cornell_budget import _lamp_u
+
+    kn = lab_knowledge(preset)
+    lab = CornellConfig().lab_view()
+    plan = d.default_cornell_plan(lab, kn)
+    truth, *_ = d._fitted(material, None)
+    _v, _s, t_int, ref = d._predicted_readings(truth, plan, lab, kn)
+    corr = _check_corrections(None)
+    print(f"\nlamp term (relative u), default plan ({len(plan)} geometries), {material}, "
+          f"instruments 0-{n - 1}:")  # fmt: skip
+    print(f"  {'cadence':<10}{'hours':>8}{'predicted':>12}{'campaign RMS':>14}{'min':>10}"
+          f"{'max':>10}")  # fmt: skip
+    for every in (160, 40, 10, 0):
+        pred, hours = d.plan_schedule(lab, plan, t_int, ref, every, kn, corr)
+        got = []
+        for seed in range(n):
+            s = run_cornell_campaign(material, seed=seed, effects=preset, reference_every=every,
+                                     budget=False)  # fmt: skip
+            got.append(_lamp_u(s, kn, corr, every))
+        g = np.array(got)
+        print(
+            f"  {every or 'none':<10}{hours:>8.3f}{pred:>12.3g}"
+            f"{math.sqrt(np.mean(g**2)):>14.3g}{g.min():>10.3g}{g.max():>10.3g}",
+            flush=True,
+        )
+
+
+def validate(r: d.DesignResult, n: int, folder: Path, preset: Any = "cornell2005") -> None:
     path = folder / "designed.csv"
     d.write_cornell_plan(path, r)
     within = total = met = n_t = 0
     ratios = []
     for seed in range(n):
-        s = run_cornell_campaign(r.material, plan=str(path), seed=seed)
+        s = run_cornell_campaign(r.material, plan=str(path), seed=seed, effects=preset)
         b = s["budget"]["parameters"]
         within += s["budget"]["coverage"]["n_within_U"]
         total += s["budget"]["coverage"]["n"]
@@ -115,7 +174,8 @@ def validate(r: d.DesignResult, n: int, folder: Path) -> None:
         met += sum(ok)
         n_t += len(ok)
     q = np.array(ratios)
-    print(f"\nvalidation over {n} instrument seeds, designed plan ({len(r.plan)} geometries):")
+    print(f"\nvalidation over {n} instrument seeds, designed plan ({len(r.plan)} geometries, "
+          f"reference every {r.reference_every or 'none'}, {r.hours:.3f} h):")  # fmt: skip
     print(f"  truth within achieved U: {within}/{total} = {within / total:.4f}")
     print(
         f"  achieved / predicted U: median {np.median(q):.3f}, range {q.min():.3f}-{q.max():.3f},"
@@ -276,15 +336,22 @@ def main() -> None:
         action="store_true",
         help="lbl --validate: the default plan too, on the same instruments",
     )
+    ap.add_argument("--lamp", type=float, default=1.0,
+                    help="cornell: the lamp's warm-up and drift times this factor")  # fmt: skip
+    ap.add_argument("--lamp-table", type=int, default=0, metavar="N",
+                    help="cornell: predicted vs campaigns' lamp term on N instruments")  # fmt: skip
     a = ap.parse_args()
     if a.lbl:
         return bench_lbl(a.validate, a.factor, a.instruments, a.with_default, a.workers, a.brackets)
+    preset = lamp_preset(a.lamp)
+    if a.lamp_table:
+        return lamp_table(a.material, preset, a.lamp_table)
     targets = d.parse_targets(a.target or None)
     prior = d.parse_prior(a.prior)
     t0 = time.perf_counter()
-    base = run_cornell_campaign(a.material, seed=0)
+    base = run_cornell_campaign(a.material, seed=0, effects=preset)
     t_base = time.perf_counter() - t0
-    r, times = _time_design(a.material, targets, prior)
+    r, times = _time_design(a.material, targets, prior, preset)
     print(r.table())
     print(
         f"\ndesign time (s): candidates {times['candidates_s']:.1f}, search + prediction "
@@ -298,7 +365,7 @@ def main() -> None:
         if a.table:
             table(a.material, r, a.uniform, Path(tmp), not a.no_hemispherical)
         if a.validate:
-            validate(r, a.validate, Path(tmp))
+            validate(r, a.validate, Path(tmp), preset)
 
 
 if __name__ == "__main__":

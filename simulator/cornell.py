@@ -78,6 +78,7 @@ from gonio.simulator.cornell_plans import (
     incidence_plane_plan,
     order_plan,
     read_plan_csv,
+    reference_seconds,
 )
 from gonio.simulator.cornell_true import TrueInstrument
 from gonio.simulator.spectra import detector_response, halogen_spectrum, spectralon_reflectance
@@ -1038,7 +1039,8 @@ def _campaign_metadata(
 ) -> dict[str, Any]:
     """The metadata :func:`simulate_campaign` records: the instrument, the reference, the
     cone integrations skipped, the integration times and the estimated run time."""
-    est = estimate_run_time(p, timing, t_int)
+    ref_s = _reference_seconds(timing or Timing(), inst.config, refs[0][1])
+    est = estimate_run_time(p, timing, t_int, reference_every=reference_every, reference_s=ref_s)
     meta = {
         "instrument": "cornell",
         "sample": sample if isinstance(sample, str) else getattr(inst.sample, "name", "callable"),
@@ -1069,11 +1071,10 @@ def _geometry_seconds(tm: Timing, delta: NDArray, t: float) -> float:
 
 
 def _reference_seconds(tm: Timing, c: CornellConfig, ref: Reference) -> float:
-    """Real-instrument time of a re-measured standard: two moves of up to 90 deg on every
-    axis and ``n_reference_reads`` sets of four reads."""
-    move = float(tm.move_time(np.radians([[90.0, 90.0, 90.0]]))[0])
-    t = float(ref.meta.get("t", 1.0))
-    return 2 * move + max(1, int(c.n_reference_reads)) * 4 * (t + tm.read_overhead_s)
+    """Real-instrument time of a re-measured standard
+    (:func:`gonio.simulator.cornell_plans.reference_seconds` at the reference's integration
+    time and ``n_reference_reads``)."""
+    return reference_seconds(tm, float(ref.meta.get("t", 1.0)), c.n_reference_reads)
 
 
 def _interpolated_reference(refs: list[tuple[float, Reference]], t: float) -> Reference:

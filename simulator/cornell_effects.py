@@ -38,6 +38,7 @@ from gonio.simulator.effects import realise as _realise
 
 __all__ = [
     "EFFECTS",
+    "LAMP_WARMUP_TAU_S",
     "PRESETS",
     "check_magnitudes",
     "is_ideal",
@@ -46,6 +47,10 @@ __all__ = [
     "realise",
     "resolve_effects",
 ]
+
+#: the lamp's warm-up time constant (s), the ``lamp_warmup`` effect's documented value (a
+#: data-sheet figure the laboratory knows as well)
+LAMP_WARMUP_TAU_S = 600.0
 
 _LT = "Li, H., Torrance, K. E. (2005). A practical, comprehensive light reflection model"
 _EST = "engineering estimate (the paper states no value)"
@@ -301,4 +306,4 @@ def lab_knowledge(
 def lamp_factor(m: Mapping[str, float], t_s: float) -> float:
     """Relative lamp output at campaign time ``t_s`` (s): 1 - w exp(-t/600) + d t/3600."""
     w, d = float(m.get("lamp_warmup", 0.0)), float(m.get("lamp_drift", 0.0))
-    return 1.0 - w * math.exp(-t_s / 600.0) + d * t_s / 3600.0
+    return 1.0 - w * math.exp(-t_s / LAMP_WARMUP_TAU_S) + d * t_s / 3600.0

@@ -43,9 +43,16 @@ __all__ = [
     "estimate_run_time",
     "hemispherical_plan",
     "incidence_plane_plan",
+    "measurement_seconds",
+    "n_rereferences",
     "order_plan",
     "read_plan_csv",
+    "reference_seconds",
 ]
+
+#: reads averaged for a reference when the caller does not say
+#: (``gonio.simulator.cornell.CornellConfig.n_reference_reads``' default)
+DEFAULT_REFERENCE_READS = 16
 
 
 @dataclass
@@ -336,12 +343,89 @@ def _two_opt(ang: NDArray, order: NDArray, timing: Timing, passes: int) -> NDArr
     return order
 
 
+def reference_seconds(
+    timing: Timing | None = None,
+    integration_s: float | None = None,
+    n_reads: int = DEFAULT_REFERENCE_READS,
+) -> float:
+    """Real-instrument time (s) of one re-measured reference (the white standard).
+
+    The stages leave the sample's geometry for the reference's and come back (two moves,
+    each bounded by a 90° move of every axis at once), then ``n_reads`` sets of the four reads
+    of a measurement (signal and dark through each polariser) at the reference's integration
+    time ``integration_s`` (its auto-exposure's; default ``timing.default_integration_s``),
+    each with its read-out overhead. This is the campaign's lamp clock
+    (``gonio.simulator.cornell.simulate_campaign``: the simulated lamp's warm-up and drift
+    run on it) and the run-time estimate's (:func:`estimate_run_time` with
+    ``reference_every``), so the two agree. The beam-trap reads of the first reference and
+    the settling after the two moves are not counted (the clock's definition since the drift
+    correction was added; kept so that its campaigns stay the same).
+
+    Parameters
+    ----------
+    timing : Timing, optional
+        The stages' speeds and the read-out overhead (default :class:`Timing`).
+    integration_s : float, optional
+        The reference's integration time (s), positive.
+    n_reads : int
+        Reads averaged per spectrum (``CornellConfig.n_reference_reads``; at least 1 is
+        taken).
+
+    Returns
+    -------
+    float
+        Seconds.
+    """
+    tm = timing or Timing()
+    t = tm.default_integration_s if integration_s is None else float(integration_s)
+    if not (math.isfinite(t) and t > 0):
+        raise ValueError(f"integration_s = {integration_s!r}: expected a positive time (s)")
+    move = float(tm.move_time(np.radians([[90.0, 90.0, 90.0]]))[0])
+    return 2 * move + max(1, int(n_reads)) * 4 * (t + tm.read_overhead_s)
+
+
+def n_rereferences(n_measurements: int, reference_every: int) -> int:
+    """References measured again in a campaign of ``n_measurements`` geometries: after every
+    ``reference_every``-th and after the last (``gonio.simulator.cornell.simulate_campaign``);
+    0 when ``reference_every`` is 0 (the first reference only)."""
+    every = int(reference_every)
+    if every != reference_every or every < 0:
+        raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")
+    if every == 0 or n_measurements <= 0:
+        return 0
+    return -(-int(n_measurements) // every)
+
+
+def measurement_seconds(
+    plan: Plan,
+    timing: Timing | None = None,
+    integration_s: ArrayLike | None = None,
+    *,
+    start: ArrayLike = (0.0, 0.0, 0.0),
+) -> NDArray[np.float64]:
+    """Real-instrument time (s) of each reachable row in the plan's order: its move from the
+    previous row (``start`` for the first) and its reads, as in :func:`estimate_run_time`
+    (whose total without references is their sum): the campaign's schedule."""
+    timing = timing or Timing()
+    p = plan.measurable()
+    n = len(p)
+    t_int = (np.full(n, timing.default_integration_s) if integration_s is None
+             else np.asarray(integration_s, dtype=np.float64).ravel())  # fmt: skip
+    if t_int.shape != (n,) or np.any(t_int <= 0) or not np.isfinite(t_int).all():
+        raise ValueError(f"integration_s must hold {n} positive times (one per reachable row)")
+    path = np.concatenate([np.asarray(start, float)[None], p.angles])
+    per = timing.settle_s + timing.preview_s + timing.read_overhead_s + timing.polarizer_change_s
+    return timing.move_time(np.diff(path, axis=0)) + per + 4.0 * (t_int + timing.read_overhead_s)
+
+
 def estimate_run_time(
     plan: Plan,
     timing: Timing | None = None,
     integration_s: ArrayLike | None = None,
     *,
     start: ArrayLike = (0.0, 0.0, 0.0),
+    reference_every: int = 0,
+    reference_s: float | None = None,
 ) -> dict[str, float]:
     """Estimated real-instrument time (s) for the reachable rows in the plan's order.
 
@@ -351,8 +435,20 @@ def estimate_run_time(
     read overhead each; ``gonio.simulator.cornell.read_sequence``). ``integration_s`` gives one
     integration time per reachable row (e.g. from a simulation's auto-exposure); default
     ``timing.default_integration_s``.
+
+    ``reference_every = N > 0``: the reference measured again after every N-th measurement
+    and after the last (:func:`n_rereferences`), each taking ``reference_s`` (default
+    :func:`reference_seconds` at the default integration time); the total is then the
+    campaign's lamp clock at its end. The first reference, before the first measurement (the
+    clock's zero), is not counted, with or without re-measurements. Reported as
+    ``n_references`` (the re-measured ones) and ``reference_s`` (their time, in
+    ``overhead_s`` and in the total; its uncertainty with the overheads').
     """
     timing = timing or Timing()
+    n_ref = n_rereferences(len(plan.measurable()), reference_every)
+    t_ref = reference_seconds(timing) if reference_s is None else float(reference_s)
+    if not (math.isfinite(t_ref) and t_ref >= 0):
+        raise ValueError(f"reference_s = {reference_s!r}: expected a time >= 0 (s)")
     p = plan.measurable()
     n = len(p)
     if integration_s is None:
@@ -377,6 +473,10 @@ def estimate_run_time(
     total = float(moves.sum() + per.sum())
     integ = float(4.0 * t_int.sum())
     fixed = float(per.sum()) - integ
+    refs = n_ref * t_ref
+    if n_ref:
+        total += refs
+        fixed += refs
     # the estimate's uncertainty: each group of assumptions scaled by its relative
     # uncertainty (the moves through the speeds and accelerations), in quadrature
     f = 1.0 + timing.speed_u
@@ -395,4 +495,6 @@ def estimate_run_time(
         "total_h": total / 3600.0,
         "total_u_h": u / 3600.0,
         "per_measurement_s": total / max(n, 1),
+        "n_references": float(n_ref),
+        "reference_s": float(refs),
     }

@@ -78,6 +78,7 @@ __all__ = [
     "identifiability_scan",
     "main",
     "offset_sensitivity",
+    "plan_file_reference_every",
     "reference_band_error",
     "run_cornell_campaign",
     "stray_offset_error",
@@ -90,6 +91,42 @@ def _write_json(path: Path, obj: Any) -> None:
     from gonio.io.jsonfile import to_json
 
     atomic_write_bytes(path, (to_json(obj) + "\n").encode())
+
+
+#: the header line ``gonio design`` writes at the top of a Cornell plan file (a JSON object)
+PLAN_HEADER = "# gonio design:"
+#: what plan files written before the design chose the cadence hold (the campaign's default)
+_LEGACY_CADENCE = "the campaign's (not designed)"
+
+
+def plan_file_reference_every(path: str | os.PathLike) -> int | None:
+    """The reference cadence a Cornell plan file carries (``reference_every`` of its
+    ``# gonio design: {...}`` line, :func:`gonio.campaign.design.write_cornell_plan`): an
+    integer >= 0, or None when the file has no such line or field (or the text earlier
+    versions wrote there, :data:`_LEGACY_CADENCE`): the campaign's default applies.
+    ``ValueError`` naming the file and the field for anything else (a negative number, a
+    fraction, a string, a line that is not JSON)."""
+    import json
+
+    with open(path, encoding="utf-8-sig") as f:
+        head = next((ln for ln in f if ln.startswith(PLAN_HEADER)), None)
+    if head is None:
+        return None
+    try:
+        fields = json.loads(head[len(PLAN_HEADER) :])
+    except ValueError as exc:
+        raise ValueError(f"{path}: its '{PLAN_HEADER}' line is not a JSON object ({exc})") from None
+    if not isinstance(fields, dict):
+        raise ValueError(f"{path}: its '{PLAN_HEADER}' line is not a JSON object")
+    v = fields.get("reference_every")
+    if v is None or v == _LEGACY_CADENCE:
+        return None
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise ValueError(
+            f"{path}: reference_every = {v!r} in its '{PLAN_HEADER}' line: expected an "
+            "integer >= 0 (re-measure the reference after every N geometries; 0: once)"
+        )
+    return v
 
 
 def build_plan(
@@ -653,7 +690,8 @@ def run_cornell_campaign(
         (``"cornell2005"``, the default realistic instrument, or ``"ideal"``), realised with
         ``instrument_seed`` (default ``seed``), or a mapping of magnitudes, or None (ideal).
     reference_every : int, optional
-        Re-measure the standard after every N geometries (default 40 for a non-ideal
+        Re-measure the standard after every N geometries (default: the plan file's
+        ``reference_every`` (:func:`plan_file_reference_every`), else 40 for a non-ideal
         instrument, 0 = once at the start), in-process and through the drivers.
     corrections : dict, optional
         The laboratory's corrections, each ablatable (:data:`DEFAULT_CORRECTIONS`):
@@ -719,7 +757,7 @@ def _stages(
                 )  # fmt: skip
             else:
                 samples, ref_obj, t_int, extra = _measure_in_process(setup)
-        extra.update(_run_time_estimate(setup.plan, samples, t_int))
+        extra.update(_run_time_estimate(setup, samples, t_int, ref_obj))
         if setup.fx is not None:
             with ex.stage("correct"):
                 samples = _apply_corrections(setup, samples, ref_obj, extra)
@@ -859,6 +897,15 @@ def _prepare(
         knowledge = (lab_knowledge(effects) if is_preset(effects)
                      else {k: (float(v), 0.0) for k, v in fx.items() if v})  # fmt: skip
     corr = _check_corrections(corrections)
+    if isinstance(plan, str | os.PathLike) and str(plan) not in PLANS and Path(plan).is_file():
+        in_file = plan_file_reference_every(plan)  # the design's cadence
+        if in_file is not None:
+            if reference_every is not None and reference_every != in_file:
+                raise ValueError(
+                    f"reference_every = {reference_every!r} and the plan file's "
+                    f"reference_every = {in_file}: give one (the plan file's is the design's)"
+                )
+            reference_every = in_file
     every = (40 if fx is not None else 0) if reference_every is None else reference_every
     if int(every) != every or every < 0:
         raise ValueError(f"reference_every = {reference_every!r}: expected an integer >= 0")
@@ -983,15 +1030,26 @@ def _stray_correction(setup: _Setup) -> float:
     return _nominal(setup.knowledge, "stray_light_fraction")
 
 
-def _drift_summary(p: Any, res: dict) -> dict[str, Any]:
+def _reference_s(ref: Any, cfg: Any) -> float:
+    """Real-instrument time of one re-measured reference like ``ref`` (its integration
+    time) on the configuration ``cfg``."""
+    from gonio.simulator.cornell_plans import Timing, reference_seconds
+
+    return reference_seconds(Timing(), float(ref.meta.get("t", 1.0)), cfg.n_reference_reads)
+
+
+def _drift_summary(p: Any, res: dict, cfg: Any) -> dict[str, Any]:
     """``n_references`` and ``reference_drift`` (hours, mean rate / the first's) of a
     campaign through the drivers, its references placed in time by the run-time estimate
-    (the laboratory's clock: geometries measured x the estimated time per geometry)."""
+    (the laboratory's clock: geometries measured x the estimated time per geometry, plus
+    the earlier re-measured references' time,
+    :func:`gonio.simulator.cornell_plans.reference_seconds`)."""
     from gonio.simulator.cornell import _reference_drift
     from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
     per_s = estimate_run_time(p, Timing(), res["t"])["per_measurement_s"]
-    refs = [(count * per_s, ref) for count, ref in res["references"]]
+    ref_s = _reference_s(res["reference"], cfg)
+    refs = [(count * per_s + k * ref_s, ref) for k, (count, ref) in enumerate(res["references"])]
     return {"n_references": len(refs), "reference_drift": _reference_drift(refs)}
 
 
@@ -1063,7 +1121,7 @@ def _measure_through_drivers(
         extra["device_reads"] = rig.n_reads
         extra["device_moves"] = rig.n_moves
     if setup.reference_every:
-        extra.update(_drift_summary(p, res))
+        extra.update(_drift_summary(p, res, setup.lab))
     sig = res["sigma"] if setup.noise else np.full_like(res["sigma"], np.nan)
     samples = _samples_from(
         np.radians(res["positions_deg"]), res["value"], sig, setup.lab.kinematics, setup.meta
@@ -1075,17 +1133,20 @@ def _measure_through_drivers(
     return samples, res["reference"], res["t"], extra
 
 
-def _run_time_estimate(p: Any, samples: BRDFSamples, t_int: Any) -> dict[str, Any]:
-    """What the real instrument would take for the plan (summary fields)."""
+def _run_time_estimate(setup: _Setup, samples: BRDFSamples, t_int: Any, ref: Any) -> dict[str, Any]:
+    """What the real instrument would take for the plan, its re-measured references
+    included (summary fields)."""
     from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
+    p = setup.plan
     extra: dict[str, Any] = {}
+    kw = {"reference_every": setup.reference_every, "reference_s": _reference_s(ref, setup.lab)}
     if t_int is None:
-        est = estimate_run_time(p, Timing(), None)
+        est = estimate_run_time(p, Timing(), None, **kw)
         est_h = float(samples.metadata.get("estimated_run_time_h", est["total_h"]))
         est["total_u_h"] = float(samples.metadata.get("estimated_run_time_u_h", est["total_u_h"]))
     else:
-        est = estimate_run_time(p, Timing(), t_int)
+        est = estimate_run_time(p, Timing(), t_int, **kw)
         est_h = float(est["total_h"])
         extra["estimated_real_instrument_breakdown_h"] = {
             k: round(est[k] / 3600.0, 3) for k in ("move_s", "integration_s", "overhead_s")

@@ -356,9 +356,13 @@ def cornell_budget(
     reference_every: int = 0,
     k: float = 2.0,
     angles: NDArray | None = None,
+    lamp_u: float | None = None,
 ) -> dict[str, Any]:
     """The budget of a fitted Cornell campaign (module docstring). ``angles``: the plan's
     commanded motor angles (rad, in the order measured; the side of each stage's backlash).
+    ``lamp_u``: the lamp term's relative standard uncertainty, given instead of evaluated
+    from the campaign's references (:func:`_lamp_u`; a design's prediction before any
+    reference is measured, :func:`gonio.campaign.design.predicted_lamp_u`).
 
     Returns ``{"parameters": {name: combine(...) + truth_within_U}, "k_summary": {k_dd: ...},
     "coverage": {...}, "effects": [...]}``; the truth is read from ``summary`` (the
@@ -380,7 +384,10 @@ def cornell_budget(
     free = list(res.free)
     use, proj = _hat_projector(tuple(np.round(ref.wavelengths_nm, 9)), tuple(BANDS_NM))
     kref = np.clip(proj @ (0.5 * (ref.rate["s"] + ref.rate["p"]) / ref.scale)[use], 1e-300, None)
-    lamp_u = _lamp_u(summary, knowledge, corrections, reference_every) if knowledge else 0.0
+    if lamp_u is None:
+        lamp_u = _lamp_u(summary, knowledge, corrections, reference_every) if knowledge else 0.0
+    elif not (math.isfinite(lamp_u) and lamp_u >= 0):
+        raise ValueError(f"lamp_u = {lamp_u!r}: expected a relative uncertainty >= 0")
     pats = {}
     if knowledge:
         pats = _patterns(

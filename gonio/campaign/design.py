@@ -35,19 +35,60 @@ band's coefficients and the shared shape parameters), until every reachable targ
 the time limit is spent; then a backward pass drops geometries whose removal keeps every
 target met, the slowest first.
 
-The reference cadence is not chosen by the design, and the plan file does not carry one
-(the campaign's default applies: the reference again after every 40 geometries with a
-realistic preset). The budget's term that depends on it is the lamp's
-(``gonio.campaign.cornell_budget._lamp_u``): with three references or more, the leave-one-out
-residual of their linear interpolation *measured* from the campaign's own references (a Type
-A evaluation that no prediction made before the measurement supplies); with fewer, the data
-sheet's warm-up and drift over the plan's hours, which the prediction already has from the
-plan's time. And the run-time model (:func:`gonio.simulator.cornell_plans.estimate_run_time`)
-gives a reference measurement no time, so a denser cadence costs nothing there: a cadence
-chosen from those two would be invented, not designed.
+The reference cadence (``reference_every``: the white reference measured again after every
+N geometries and after the last, the campaign's drift correction interpolating between them)
+is chosen too, among :data:`CADENCES`, sparsest first. Its cost is the references' time
+(:func:`gonio.simulator.cornell_plans.reference_seconds`, the campaign's lamp clock; in the
+search each geometry carries its share ``reference_s / N``, and the hours are
+:func:`~gonio.simulator.cornell_plans.estimate_run_time` with the references, which equals
+the campaign's clock). Its benefit is the budget's lamp term
+(``gonio.campaign.cornell_budget._lamp_u``), predicted by :func:`predicted_lamp_u` from the
+data sheet's warm-up and drift alone: the warm-up's curvature that the interpolation leaves
+at the references of the plan's schedule plus their read noise, evaluated as the campaign
+evaluates its own (the leave-one-out residual of three references or more; the data sheet's
+bound over the campaign's hours with fewer). A relative scale of every reading moves each
+coefficient k by the same relative amount and no shape parameter, so the search takes the
+lamp term as a floor of the k's, first for a guessed schedule, then for the plan it found;
+the prediction passes it to the budget (``cornell_budget(..., lamp_u=...)``). A denser
+cadence is tried only while the lamp term is at least 30 % of some target's uncertainty (a
+cadence whose plan would get fewer than three references is skipped: the same term as
+none, more time); the design keeps the cadence with the fewest missed targets, then the
+least time, and writes it into the plan file, which the campaign applies. The prediction
+against campaigns (``benchmarks/bench_design.py --lamp-table 5``: the default plan, 212
+geometries, garnet red paint, instruments 0-4; the campaigns' term is the budget's, from
+their own references; RMS over the instruments, min-max):
+
+========  ======  ===========  =======================  ====================  =====================
+lamp      every   hours        predicted                campaigns' RMS        min - max
+========  ======  ===========  =======================  ====================  =====================
+default   160     0.675        1.47e-3                  1.26e-3               1.02e-3 - 1.55e-3
+default   40      0.745        3.56e-4                  3.25e-4               2.55e-4 - 3.82e-4
+default   10      1.027        6.8e-5                   7.0e-5                5.72e-5 - 8.65e-5
+default   none    0.639        3.52e-3                  3.52e-3               3.51e-3 - 3.52e-3
+5 x       160     0.675        7.34e-3                  6.36e-3               5.09e-3 - 7.78e-3
+5 x       40      0.745        1.77e-3                  1.56e-3               1.24e-3 - 1.96e-3
+5 x       10      1.027        2.63e-4                  2.31e-4               1.86e-4 - 2.81e-4
+5 x       none    0.639        1.76e-2                  1.76e-2               1.76e-2 - 1.76e-2
+========  ======  ===========  =======================  ====================  =====================
+
+(5 x: the warm-up and drift, typical and spread, five times cornell2005's, ``--lamp 5``.) The
+prediction is 0.97-1.17 times the campaigns' RMS; the RMS over instruments of the warm-up is
+used, so a single instrument's term scatters about it (0.69-1.05 times the prediction at
+every 160, three references). The search's guess of the schedule can leave it measuring
+more geometries at a sparse cadence where fewer at a denser one are quicker, which is why a
+denser cadence is tried while the lamp term matters even with every target met (the
+cadences tried are in ``meta["cadences_tried"]``). Measured (garnet red paint,
+``--target "k_dd[20]=0.65%" --validate 20``, 13 x 13 candidates): 10 geometries with the
+reference every 4 geometries, 0.074 h (the target lies below the floor without
+references); achieved / predicted U 0.976-1.021 (median 1.001), the target met on 20/20
+instruments, but the truth within U for only 1637/1900 parameters: on instruments 1 and
+2 every k_dd band is fitted 1-2 % low with U 0.4-0.6 %, and the same without re-measured
+references (``reference_every=0`` on that plan) — a systematic that this 10-geometry
+plan's budget misses, not the lamp's; not resolved.
 
 Measured (garnet red paint, cornell2005, every parameter at 5 %, the default 13 x 13 grid:
-1186 candidates): a 5-geometry plan of 0.028 h (the default plan: 0.63 h, k_fs at ~25 %;
+1186 candidates): a 5-geometry plan of 0.029 h, the first reference only (the default plan:
+0.74 h with its references every 40, k_fs at ~25 %;
 the hemispherical plan: 11.4 h) run on instruments 0-19: the truth within the achieved U for
 1878/1900 parameters, achieved / predicted U 0.86-1.16 (median 1.003), every target met
 (1880/1880). A prediction holds for the model it is made with: so few geometries leave
@@ -78,18 +119,38 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "CADENCES",
     "DesignError",
     "DesignResult",
     "design_cornell",
     "parse_prior",
     "parse_targets",
+    "predicted_lamp_u",
+    "reference_mean_noise",
+    "reference_times",
 ]
 
 _K = ("k_dd", "k_udf", "k_uds", "k_fs")
 
+#: the reference cadences the design tries, sparsest first (0: the first reference only;
+#: N: the reference again after every N geometries and after the last)
+CADENCES = (0, 160, 40, 10, 4, 2, 1)
+
+#: the campaign's cadence when its plan does not set one (gonio.campaign.cornell: a
+#: realistic instrument)
+_CAMPAIGN_CADENCE = 40
+
 
 class DesignError(ValueError):
     """An input a design cannot be made from (names what was wrong)."""
+
+
+class _NothingReachable(DesignError):
+    """Every target lies below its floor at a cadence (``unreachable``: their floors)."""
+
+    def __init__(self, unreachable: dict[str, dict[str, Any]]) -> None:
+        super().__init__("every target lies below its floor")
+        self.unreachable = unreachable
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -402,11 +463,121 @@ def cornell_candidates(
         "reference_noise": np.abs(kval) * np.r_[np.zeros(len(shape)), np.tile(ref_rel, len(free_k))]
     }
     const = np.sqrt(sum(v**2 for v in const_terms.values()))
-    info = {"fit_mode": mode, "free_k": free_k, "mirror_part": False, "truth": truth}
+    info = {"fit_mode": mode, "free_k": free_k, "mirror_part": False, "truth": truth,
+            "kval": np.abs(kval)}  # fmt: skip
     return _Candidates(
         plan, names, len(shape), free_k, vals, sig, t_int, _geometry_seconds(t_int), jts, jks,
         pats_all, pat_names, const, const_terms, pts, ref, lab, knowledge, corr, models[0], info,
     )  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- the lamp
+def reference_times(geometry_s: NDArray, every: int, reference_s: float) -> NDArray:
+    """Campaign times (s) of the references: the first at 0, then one after every
+    ``every``-th geometry and after the last, each taking ``reference_s`` — the campaign's
+    lamp clock (``gonio.simulator.cornell.simulate_campaign``) with the geometries'
+    durations ``geometry_s`` (in measuring order)."""
+    from gonio.simulator.cornell_plans import n_rereferences
+
+    g = np.asarray(geometry_s, dtype=np.float64).ravel()
+    n_re = n_rereferences(len(g), every)
+    if n_re == 0:
+        return np.zeros(1)
+    ends = np.minimum(np.arange(1, n_re + 1) * int(every), len(g))  # geometries before each
+    csum = np.concatenate([[0.0], np.cumsum(g)])
+    return np.concatenate([[0.0], csum[ends] + np.arange(1, n_re + 1) * float(reference_s)])
+
+
+def reference_mean_noise(ref: Any, lab: Any) -> float:
+    """Relative standard uncertainty of a reference's mean rate (both polarisers, every
+    pixel: the quantity ``reference_drift`` follows), from the detector model of
+    :func:`gonio.campaign.cornell.reference_band_error` (shot, dark and read noise of
+    ``n_reference_reads`` averaged reads at the reference's integration time). A
+    re-measured reference keeps the first one's stray light, so that term is left out."""
+    n = max(1, int(lab.n_reference_reads))
+    t = float(ref.meta.get("t", 1.0))
+    tr = lab.filter_transmission if ref.mode == "direct" else 1.0
+    g, rd, dk = lab.gain_e_per_count, lab.read_noise_counts, lab.dark_rate
+    var, total = 0.0, 0.0
+    for q in ("s", "p"):
+        rate = np.asarray(ref.rate[q], float)
+        stray = np.clip(np.asarray(ref.stray[q], float), 0, None)
+        cnt = np.clip(rate + stray, 0, None) * t * tr
+        var += float(np.sum(((cnt + 2 * dk * t) / g + 2 * rd**2) / (t * tr) ** 2 / n))
+        total += float(np.sum(rate))
+    return math.sqrt(var) / abs(total) if total else 0.0
+
+
+def predicted_lamp_u(
+    knowledge: dict,
+    geometry_s: NDArray,
+    every: int,
+    reference_s: float,
+    reference_noise: float = 0.0,
+    drift_correction: bool = True,
+) -> float:
+    """The lamp term of the budget (``gonio.campaign.cornell_budget._lamp_u``) predicted
+    for a cadence before any reference is measured, from the laboratory's knowledge only.
+
+    The lamp's output ``L(t) = 1 − w e^(−t/τ) + d t`` (the data sheet's warm-up ``w`` with
+    time constant ``τ`` and drift ``d`` per hour, their RMS over instruments
+    ``√(typical² + spread²)``). With three references or more (and the drift correction),
+    the campaign's term is the RMS leave-one-out residual of the references' linear
+    interpolation; a straight line removes the drift exactly, so what is left is the
+    warm-up's curvature between the neighbours of each interior reference,
+    ``w (e^(−t_k/τ) − [(1 − a_k) e^(−t_(k−1)/τ) + a_k e^(−t_(k+1)/τ)])`` with
+    ``a_k = (t_k − t_(k−1))/(t_(k+1) − t_(k−1))``, and the references' own read noise
+    ``σ`` (:func:`reference_mean_noise`) through the same weights,
+    ``σ² (1 + a_k² + (1 − a_k)²)``; the prediction is the RMS of their sum over the
+    interior references, at the campaign's schedule (:func:`reference_times`). With
+    fewer, the campaign's term is the data sheet's ``(w + d · hours)/√3`` over the
+    campaign's hours (references included), and so is the prediction.
+
+    Parameters
+    ----------
+    knowledge : dict
+        The laboratory's ``{effect: (typical, spread)}``
+        (``gonio.simulator.cornell_effects.lab_knowledge``); ``{}``: no lamp effect, 0.
+    geometry_s : array
+        Each geometry's real-instrument time in measuring order (s).
+    every : int
+        The cadence: 0 (the first reference only) or N >= 1.
+    reference_s : float
+        One re-measured reference's time (s,
+        :func:`gonio.simulator.cornell_plans.reference_seconds`).
+    reference_noise : float
+        A reference's relative read noise (:func:`reference_mean_noise`).
+    drift_correction : bool
+        The campaign interpolates the references in time (its ``drift`` correction).
+
+    Returns
+    -------
+    float
+        The relative standard uncertainty of the lamp's output left after correction.
+
+    References
+    ----------
+    .. [Walker1987] J. H. Walker, R. D. Saunders, J. K. Jackson and D. A. McSparron,
+       "Spectral irradiance calibrations", NBS Special Publication 250-20, 1987, §4: a
+       quartz-halogen lamp's warm-up of 15-30 min.
+    .. [JCGM100] JCGM 100:2008, §4.3.7 (a rectangular distribution: the data sheet's
+       bound over √3) and §5.1.2 (sensitivity coefficients: the interpolation's weights).
+    """
+    from gonio.simulator.cornell_effects import LAMP_WARMUP_TAU_S as tau
+
+    if not knowledge:
+        return 0.0
+    w = math.hypot(*knowledge.get("lamp_warmup", (0.0, 0.0)))
+    d = math.hypot(*knowledge.get("lamp_drift", (0.0, 0.0)))
+    t = reference_times(geometry_s, every, reference_s)
+    if every and drift_correction and len(t) >= 3:
+        a = (t[1:-1] - t[:-2]) / (t[2:] - t[:-2])
+        f = np.exp(-t / tau)
+        e = f[1:-1] - ((1 - a) * f[:-2] + a * f[2:])
+        var = (w * e) ** 2 + reference_noise**2 * (1 + a**2 + (1 - a) ** 2)
+        return float(np.sqrt(np.mean(var)))
+    hours = (float(np.sum(geometry_s)) + (len(t) - 1) * float(reference_s)) / 3600.0
+    return (w + d * hours) / math.sqrt(3.0)
 
 
 # ----------------------------------------------------------------------------- search
@@ -520,6 +691,7 @@ class DesignResult:
     unreachable: dict[str, dict[str, Any]]
     design_s: float
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)
+    reference_every: int = 0  # the designed reference cadence (0: the first reference only)
 
     def table(self) -> str:
         """The designed plan's predicted U beside the default plan's, one row per parameter
@@ -551,8 +723,11 @@ class DesignResult:
                 f"  {d['dominant']}"
             )
         if self.instrument == "cornell":
-            lines.append("  reference cadence: the campaign's (not designed: its lamp term is "
-                         "measured from the references; see gonio.campaign.design)")  # fmt: skip
+            cad = (f"every {self.reference_every} geometries" if self.reference_every
+                   else "the first reference only")  # fmt: skip
+            lines.append(f"  reference cadence: {cad} (lamp term u = "
+                         f"{self.meta.get('lamp_u', 0.0):.2g}, predicted; references' time "
+                         "included in the hours)")  # fmt: skip
         n_met = sum(1 for p, t in self.targets.items() if self.predicted[p]["U"] <= t)
         lines.append(f"  targets met (predicted, worst case over the prior): {n_met}/"
                      f"{len(self.targets)}; design {self.design_s:.1f} s")  # fmt: skip
@@ -575,6 +750,7 @@ class DesignResult:
             "default": self.default,
             "unreachable": self.unreachable,
             "design_s": self.design_s,
+            "reference_every": self.reference_every,
             **self.meta,
         }
 
@@ -655,18 +831,6 @@ def design_cornell(
         theta_i_deg=tuple(theta_i_deg),
     )  # fmt: skip
     tabs = _absolute_targets(tg, c)
-    P = len(c.names)
-    t2 = np.full(P, np.inf)
-    unreachable: dict[str, dict[str, Any]] = {}
-    for i, p in enumerate(c.names):
-        if p not in tabs:
-            continue
-        floor = float(2.0 * c.const[i])
-        if tabs[p] <= floor:
-            dom = max(c.const_terms, key=lambda n: c.const_terms[n][i])
-            unreachable[p] = {"target": tabs[p], "floor": floor, "dominant": dom}
-        else:
-            t2[i] = tabs[p] ** 2
     # the cheapest identifiable plan must fit in the time limit
     n_min = c.n_shape + len(c.free_k)
     if time_limit_h is not None:
@@ -676,30 +840,119 @@ def design_cornell(
                 f"time limit {time_limit_h} h: no plan can meet it (the {n_min} quickest "
                 f"geometries alone take {cheapest:.3g} h)"
             )
+    best: DesignResult | None = None
+    tried: list[dict[str, Any]] = []
+    n_guess = max(2 * n_min, 10)
+    n_last: int | None = None  # the last designed plan's geometries
+    below: dict[str, dict[str, Any]] = {}
+    for every in CADENCES if c.knowledge else (0,):
+        if every and n_last is not None and n_last < 2 * every:
+            continue  # fewer than three references: the data sheet's term, as with none
+        try:
+            r = _design_at(c, tabs, every, n_guess, time_limit_h, max_steps, margin, refine,
+                           material, compare_default)  # fmt: skip
+        except _NothingReachable as exc:
+            below = exc.unreachable
+            tried.append({"reference_every": every, "targets_missed": len(tabs),
+                          "every_target_below_its_floor": True})  # fmt: skip
+            if any(u["dominant"] == "lamp_drift" for u in below.values()):
+                continue  # denser references lower the floor
+            break
+        except DesignError:
+            if best is None:  # the sparsest cadence's failure: a denser one takes longer
+                raise
+            break
+        n_last = len(r.plan)
+        missed = [p for p, t in tabs.items() if r.predicted[p]["U"] > t]
+        r.meta["missed"] = missed
+        tried.append({"reference_every": every, "n_geometries": len(r.plan), "hours": r.hours,
+                      "lamp_u": r.meta["lamp_u"], "targets_missed": len(missed)})  # fmt: skip
+        if best is None or (len(missed), r.hours) < (len(best.meta["missed"]), best.hours):
+            best = r
+        n_guess = max(n_guess, len(r.plan))
+        # a denser cadence only while the lamp's term is a material part of a target's
+        # uncertainty (a missed target above what no cadence removes: a denser cadence may
+        # meet it; a met one: may need fewer geometries); the best kept
+        if not any(_lamp_matters(r, p) for p in tabs):
+            break
+    if best is None:
+        p, u = next(iter(below.items()))
+        raise DesignError(
+            f"every target lies below its floor at every reference cadence tried (e.g. {p}: "
+            f"target {u['target']:.3g} < floor {u['floor']:.3g}, {u['dominant']})"
+        )
+    best.meta.pop("missed", None)
+    best.meta["cadences_tried"] = tried
+    best.design_s = time.perf_counter() - t0
+    return best
+
+
+def _lamp_matters(r: DesignResult, p: str) -> bool:
+    """Whether denser references could help parameter ``p`` of ``r`` (reach its target, or
+    reach it with fewer geometries): the lamp's term is at least 30 % of its combined
+    uncertainty and, if unreachable, the lamp is its floor's dominant term."""
+    if p in r.unreachable and r.unreachable[p]["dominant"] != "lamp_drift":
+        return False
+    e = r.predicted[p]
+    return e.get("contributions", {}).get("lamp_drift", 0.0) >= 0.3 * e["combined"]
+
+
+def _design_at(
+    c: _Candidates, tabs: dict, every: int, n_guess: int, time_limit_h: float | None,
+    max_steps: int, margin: float, refine: int, material: str, compare_default: bool,
+) -> DesignResult:  # fmt: skip
+    """The geometries designed for the reference cadence ``every``: each geometry's time with
+    its share of the references' (``reference_s / every``), the lamp's predicted term a
+    floor of every coefficient (a relative scale of every reading moves each k by that
+    relative amount and no shape parameter), first for a guessed schedule (``n_guess``
+    geometries of the candidates' median time), then for the plan found."""
+    from gonio.simulator.cornell_plans import Timing, reference_seconds
+
+    ref_s = reference_seconds(Timing(), float(c.ref.meta.get("t", 1.0)), c.lab.n_reference_reads)
+    seconds = c.seconds + (ref_s / every if every else 0.0)
+    lamp = predicted_lamp_u(
+        c.knowledge, np.full(n_guess, float(np.median(c.seconds))), every, ref_s,
+        reference_mean_noise(c.ref, c.lab), bool(c.corrections.get("drift", True)),
+    )  # fmt: skip
+    kval = c.info["kval"]
     scale = np.array([abs(float(c.info["truth"].params[p])) if "[" not in p else 1.0
                       for p in c.names])  # fmt: skip
     ridge = 1.0 / (100.0 * np.maximum(scale, 1e-3)) ** 2
     states = [_State(c, j, ridge) for j in range(len(c.prior_points))]
     chosen = np.zeros(len(c.plan), bool)
     limit_s = math.inf if time_limit_h is None else time_limit_h * 3600.0
-    t2 *= (1.0 - margin) ** 2  # aim below the target: the achieved U scatters about the prediction
+    t2_search = None
     for _round in range(refine + 1):
-        phi = _greedy(states, chosen, c, t2, limit_s, max_steps)
+        lamp_terms = {**c.const_terms, "lamp_drift": lamp * kval}
+        const = np.sqrt(sum(v**2 for v in lamp_terms.values()))
+        t2, unreachable = _reachable(c, tabs, const, lamp_terms)
+        if not np.isfinite(t2).any():
+            raise _NothingReachable(unreachable)
+        t2 *= (1.0 - margin) ** 2  # aim below the target: the achieved U scatters about it
+        if t2_search is not None:  # the earlier rounds' tightened targets kept
+            t2 = np.where(np.isfinite(t2), np.minimum(t2, t2_search), np.inf)
+        cs = dataclasses.replace(c, seconds=seconds, const=const, const_terms=lamp_terms)
+        for st in states:
+            st.c = cs
+        phi = _greedy(states, chosen, cs, t2, limit_s, max_steps)
         if phi > 0 and not chosen.any():
             raise DesignError("no candidate geometry reduces the uncertainty of the targets")
-        _prune(states, chosen, c, t2)
-        result = _finish(c, np.flatnonzero(chosen), tabs, unreachable, material, compare_default)
+        _prune(states, chosen, cs, t2)
+        result = _finish(cs, np.flatnonzero(chosen), tabs, unreachable, material,
+                         compare_default, every)  # fmt: skip
+        lamp = result.meta["lamp_u"]
         # the budget of the ordered plan has terms the search approximates (the backlash's
-        # sides, the stages' noise, the exposure of the polariser put first): tighten the
-        # search's targets of the parameters it missed and continue from the plan
+        # sides, the stages' noise, the exposure of the polariser put first, the lamp's
+        # schedule): tighten the search's targets of the parameters it missed and continue
         missed = [i for i, p in enumerate(c.names) if p in tabs and p not in unreachable
                   and result.predicted[p]["U"] > tabs[p]]  # fmt: skip
         if not missed or _round == refine:
             break
+        t2_search = t2.copy()
         for i in missed:
             p = c.names[i]
-            t2[i] *= (tabs[p] / result.predicted[p]["U"]) ** 2 * (1.0 - margin) ** 2
-    result.design_s = time.perf_counter() - t0
+            t2_search[i] *= (tabs[p] / result.predicted[p]["U"]) ** 2 * (1.0 - margin) ** 2
+    c.default = cs.default  # the default plan's prediction, made once
     result.meta["objective_left"] = float(phi)
     result.meta["rounds"] = _round + 1
     result.meta["not_met"] = [c.names[i] for i in missed]
@@ -709,6 +962,28 @@ def design_cornell(
             "ordered; no plan within the limit was found"
         )
     return result
+
+
+def _reachable(
+    c: _Candidates, tabs: dict, const: NDArray, terms: dict[str, NDArray]
+) -> tuple[NDArray, dict[str, dict[str, Any]]]:
+    """Squared targets (∞ where none) and the targets below their floor ``2 const``; the
+    dominant term named is the one no cadence removes (:attr:`_Candidates.const_terms`) when
+    the target lies below those alone, else the lamp's (denser references would lower it)."""
+    t2 = np.full(len(c.names), np.inf)
+    unreachable: dict[str, dict[str, Any]] = {}
+    for i, p in enumerate(c.names):
+        if p not in tabs:
+            continue
+        floor = float(2.0 * const[i])
+        if tabs[p] <= floor:
+            fixed = 2.0 * math.sqrt(sum(float(v[i]) ** 2 for v in c.const_terms.values()))
+            pool = c.const_terms if tabs[p] <= fixed else terms
+            dom = max(pool, key=lambda n: pool[n][i])
+            unreachable[p] = {"target": tabs[p], "floor": floor, "dominant": dom}
+        else:
+            t2[i] = tabs[p] ** 2
+    return t2, unreachable
 
 
 def _greedy(
@@ -765,23 +1040,54 @@ def _prune(states: list[_State], chosen: NDArray, c: _Candidates, t2: NDArray) -
 
 
 # ----------------------------------------------------------------------------- prediction
-def predict_cornell(c: _Candidates, plan: Any, point: int = 0) -> tuple[dict, float]:
+def plan_schedule(
+    lab: Any, plan: Any, t_int: NDArray, ref: Any, every: int, knowledge: dict,
+    corrections: dict | None = None,
+) -> tuple[float, float]:  # fmt: skip
+    """A plan's predicted lamp term (:func:`predicted_lamp_u`) and its real-instrument hours
+    (``gonio.simulator.cornell_plans.estimate_run_time`` with the ``every`` references) at
+    the integration times ``t_int`` and the reference ``ref`` the laboratory predicts."""
+    from gonio.simulator.cornell_plans import (
+        Timing,
+        estimate_run_time,
+        measurement_seconds,
+        reference_seconds,
+    )
+
+    tm = Timing()
+    ref_s = reference_seconds(tm, float(ref.meta.get("t", 1.0)), lab.n_reference_reads)
+    hours = float(estimate_run_time(plan, tm, t_int, reference_every=every,
+                                    reference_s=ref_s)["total_h"])  # fmt: skip
+    drift = bool((corrections or {}).get("drift", True))
+    lamp = predicted_lamp_u(knowledge, measurement_seconds(plan, tm, t_int), every, ref_s,
+                            reference_mean_noise(ref, lab), drift)  # fmt: skip
+    return lamp, hours
+
+
+def predict_cornell(
+    c: _Candidates, plan: Any, point: int = 0, reference_every: int = 0,
+    info: dict | None = None,
+) -> tuple[dict, float]:  # fmt: skip
     """The budget (:func:`gonio.campaign.cornell_budget.cornell_budget`) of ``plan`` (a
     Plan in measuring order) at prior point ``point``, on the prior's readings predicted in
-    that order: per parameter ``U``, ``stat``, the contributions; and the plan's estimated
-    real-instrument hours."""
+    that order, with the lamp term predicted for the cadence ``reference_every``
+    (:func:`predicted_lamp_u`): per parameter ``U``, ``stat``, the contributions; and the
+    plan's estimated real-instrument hours (its references included); ``info`` receives
+    the predicted lamp term (``lamp_u``)."""
     import types
 
     from gonio.campaign import cornell_budget as cb
     from gonio.campaign.cornell import offset_sensitivity, reference_band_error, stray_offset_error
     from gonio.samples import BRDFSamples
     from gonio.simulator.cornell import BANDS_NM, forward
-    from gonio.simulator.cornell_plans import Timing, estimate_run_time
 
     nb = len(BANDS_NM)
     model = type(c.model)(**{**c.model.params, **c.prior_points[point]})
     vals, sig, t_int, ref = _predicted_readings(model, plan, c.lab, c.knowledge)
-    hours = float(estimate_run_time(plan, Timing(), t_int)["total_h"])
+    lamp_u, hours = plan_schedule(c.lab, plan, t_int, ref, reference_every, c.knowledge,
+                                  c.corrections)  # fmt: skip
+    if info is not None:
+        info["lamp_u"] = lamp_u
     wi, wo = forward(plan.angles, c.lab.kinematics)
     g = len(plan)
     samples = BRDFSamples.from_directions(
@@ -814,7 +1120,8 @@ def predict_cornell(c: _Candidates, plan: Any, point: int = 0) -> tuple[dict, fl
     summary = {"reference_band_rel_error": list(map(float, ref_rel)),
                "stderr_with_reference": tot, "estimated_real_instrument_h": hours}  # fmt: skip
     b = cb.cornell_budget(res, {"mirror_part": False}, samples, ref, c.lab, c.knowledge,
-                          c.corrections, summary, angles=plan.angles)  # fmt: skip
+                          c.corrections, summary, angles=plan.angles,
+                          lamp_u=lamp_u if c.knowledge else None)  # fmt: skip
     return b["parameters"], hours
 
 
@@ -825,32 +1132,42 @@ def _dominant(entry: dict[str, Any]) -> str:
 
 def _finish(
     c: _Candidates, sel: NDArray, tabs: dict, unreachable: dict, material: str,
-    compare_default: bool = True,
+    compare_default: bool = True, every: int = 0,
 ) -> DesignResult:  # fmt: skip
     """Order the selection as the campaign will, predict its budget at every prior point
-    (the worst case kept), and the default plan's beside it (``compare_default``)."""
+    (the worst case kept) with the references every ``every`` geometries, and the default
+    plan's beside it (``compare_default``)."""
     from gonio.simulator.cornell_plans import order_plan
 
     sub = c.plan.subset(sel)
     sub.meta = {"kind": "designed"}
     ordered = order_plan(sub)
-    pred, hours = _worst_prediction(c, ordered)
+    lamp: dict[str, float] = {}
+    pred, hours = _worst_prediction(c, ordered, every, lamp)
     for p, t in tabs.items():
         pred[p]["target"] = t
     default = _default_prediction(c) if compare_default else {}
     return DesignResult("cornell", material, ordered, dict(tabs), pred, float(hours), default,
                         unreachable, 0.0, {"n_candidates": len(c.plan),
-                                           "prior_points": c.prior_points})  # fmt: skip
+                                           "prior_points": c.prior_points,
+                                           "lamp_u": lamp.get("lamp_u", 0.0)},
+                        reference_every=int(every))  # fmt: skip
 
 
-def _worst_prediction(c: _Candidates, plan: Any) -> tuple[dict[str, dict[str, Any]], float]:
-    """The plan's budget at every prior point, each parameter's worst case; the hours
-    (the longest)."""
+def _worst_prediction(
+    c: _Candidates, plan: Any, every: int = 0, lamp: dict | None = None
+) -> tuple[dict[str, dict[str, Any]], float]:
+    """The plan's budget at every prior point with the references every ``every``
+    geometries, each parameter's worst case; the hours (the longest); ``lamp`` receives the
+    largest predicted lamp term (``lamp_u``)."""
     out: dict[str, dict[str, Any]] = {}
     hours = 0.0
     for j in range(len(c.prior_points)):
-        pj, hj = predict_cornell(c, plan, j)
+        info: dict[str, float] = {}
+        pj, hj = predict_cornell(c, plan, j, every, info)
         hours = max(hours, hj)
+        if lamp is not None:
+            lamp["lamp_u"] = max(lamp.get("lamp_u", 0.0), info["lamp_u"])
         for p, e in pj.items():
             if p not in out or e["U"] > out[p]["U"]:
                 out[p] = e
@@ -879,8 +1196,9 @@ def _default_prediction(c: _Candidates) -> dict[str, Any]:
     candidate set: it does not depend on the targets or the search's rounds)."""
     if c.default is None:
         p = default_cornell_plan(c.lab, c.knowledge)
-        pred, hours = _worst_prediction(c, p)
-        c.default = {"n": len(p), "hours": float(hours),
+        every = _CAMPAIGN_CADENCE if c.knowledge else 0
+        pred, hours = _worst_prediction(c, p, every)
+        c.default = {"n": len(p), "hours": float(hours), "reference_every": every,
                      "predicted": {q: {"U": e["U"]} for q, e in pred.items()}}  # fmt: skip
     d = c.default
     return {**d, "predicted": {q: dict(e) for q, e in d["predicted"].items()}}
@@ -888,8 +1206,9 @@ def _default_prediction(c: _Candidates) -> dict[str, Any]:
 
 def write_cornell_plan(path: Any, result: DesignResult) -> None:
     """The designed plan as a Cornell plan CSV (``theta_i, phi_i, theta_o, phi_o`` in degrees,
-    the campaign's ``--plan FILE``), with the design's figures in ``#`` comment lines; written
-    atomically."""
+    the campaign's ``--plan FILE``), with the design's figures in a ``# gonio design: {...}``
+    comment line — among them the designed ``reference_every``, which the campaign applies
+    (``gonio.campaign.cornell.plan_file_reference_every``); written atomically."""
     import json
 
     from gonio.geometry import to_spherical
@@ -900,7 +1219,7 @@ def write_cornell_plan(path: Any, result: DesignResult) -> None:
     deg = np.degrees(np.c_[ti, pi, to, po])
     head = {"material": result.material, "instrument": result.instrument,
             "hours": round(result.hours, 4), "n_geometries": len(result.plan),
-            "reference_every": "the campaign's (not designed)"}  # fmt: skip
+            "reference_every": int(result.reference_every)}  # fmt: skip
     lines = [f"# gonio design: {json.dumps(head)}", "theta_i,phi_i,theta_o,phi_o"]
     lines += [",".join(f"{v:.9f}" for v in row) for row in deg]
     atomic_write_bytes(path, ("\n".join(lines) + "\n").encode())

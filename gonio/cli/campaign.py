@@ -62,8 +62,8 @@ def _plan_options(group) -> None:
         "--plan",
         default=None,
         help="cornell: incidence (default) | hemispherical | CSV of theta_i,phi_i,theta_o,phi_o "
-        "(deg); lbl: a JSON plan file (theta_i_deg, rotations_deg, restandard_every; as gonio "
-        "design writes it)",
+        "(deg; gonio design's also carries the reference cadence, reference_every); lbl: a JSON "
+        "plan file (theta_i_deg, rotations_deg, restandard_every; as gonio design writes it)",
     )
     group.add_argument(
         "--adaptive",

@@ -59,3 +59,49 @@ def test_run_time_estimate_carries_its_uncertainty():
     assert exact["total_u_h"] == 0.0 and exact["total_h"] == e["total_h"]
     with pytest.raises(ValueError, match=r"Timing\.speed_u = 1\.5"):
         Timing(speed_u=1.5)
+
+
+@pytest.mark.parametrize("every", [0, 3, 4, 100])
+def test_run_time_estimate_with_references_is_the_lamp_clock(every):
+    """The campaign's recorded estimate (``estimate_run_time`` with ``reference_every``) ends
+    where its lamp clock ends (references after every N-th geometry and after the last, each
+    ``reference_seconds`` long); the references add their count times that time."""
+    from gonio.simulator.cornell import CornellConfig, simulate_campaign
+    from gonio.simulator.cornell_effects import realise
+    from gonio.simulator.cornell_plans import (
+        Timing,
+        estimate_run_time,
+        incidence_plane_plan,
+        n_rereferences,
+        order_plan,
+        reference_seconds,
+    )
+
+    plan = order_plan(incidence_plane_plan((30, 60), coarse_step_deg=15.0, fine_step_deg=5.0))
+    n = len(plan)
+    cfg = CornellConfig(effects=realise("cornell2005", 0))
+    refs: list = []
+    s = simulate_campaign(plan, "garnet_red_paint", config=cfg, order=False,
+                          reference_every=every, references=refs)  # fmt: skip
+    m = s.metadata
+    assert len(refs) == 1 + n_rereferences(n, every) == 1 + (0 if every == 0 else -(-n // every))
+    assert m["estimated_run_time_h"] == pytest.approx(m["campaign_clock_h"], rel=1e-12)
+    if every:  # the clock's last reference is the campaign's end
+        assert refs[-1][0] / 3600.0 == pytest.approx(m["campaign_clock_h"], rel=1e-12)
+    t_ref = reference_seconds(Timing(), refs[0][1].meta["t"], cfg.n_reference_reads)
+    with_refs = estimate_run_time(plan, reference_every=every, reference_s=t_ref)
+    no_refs = estimate_run_time(plan)
+    assert with_refs["n_references"] == len(refs) - 1
+    assert with_refs["total_s"] - no_refs["total_s"] == pytest.approx((len(refs) - 1) * t_ref)
+
+
+def test_reference_seconds_counts_moves_and_reads():
+    from gonio.simulator.cornell_plans import Timing, reference_seconds
+
+    tm = Timing()
+    move = float(tm.move_time(np.radians([[90.0, 90.0, 90.0]]))[0])
+    assert reference_seconds(tm, 0.5, 16) == pytest.approx(2 * move + 16 * 4 * 0.65)
+    assert reference_seconds(tm, 0.5, 1) < reference_seconds(tm, 0.5, 2)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="integration_s"):
+            reference_seconds(tm, bad)
