@@ -171,7 +171,15 @@ from numpy.typing import NDArray
 
 from gonio.campaign.design import DesignError, _objective
 
-__all__ = ["LBLDesign", "design_lbl", "lbl_candidates", "plan_hours", "write_lbl_plan"]
+__all__ = [
+    "ASSURANCE",
+    "LBLDesign",
+    "check_assurance",
+    "design_lbl",
+    "lbl_candidates",
+    "plan_hours",
+    "write_lbl_plan",
+]
 
 
 #: the budget's terms a plan changes through more than its captures' sum: the lamp's (its
@@ -180,6 +188,27 @@ __all__ = ["LBLDesign", "design_lbl", "lbl_candidates", "plan_hours", "write_lbl
 _LAMP_TERMS = ("lamp_warmup", "lamp_drift")
 _PLAN_TERMS = (*_LAMP_TERMS, "exposure_table")
 _LAMP_ANCHOR = "lamp_anchor["
+
+#: the design's assurance: the fraction of physical instruments of the preset on which each
+#: target is to be met (the one-sided prediction bound over the design instruments at this
+#: level; :func:`_spread_factor`; the module docstring has its measurement)
+ASSURANCE = 0.95
+
+
+def check_assurance(assurance: Any) -> float:
+    """``assurance`` as a float, or :class:`~gonio.campaign.design.DesignError` unless it is
+    a number strictly between 0.5 (the bound would fall below the instruments' mean U) and 1
+    (the bound would be infinite)."""
+    try:
+        p = float(assurance)
+    except (TypeError, ValueError):
+        p = math.nan
+    if isinstance(assurance, bool) or not 0.5 < p < 1.0:
+        raise DesignError(
+            f"assurance {assurance!r}: expected a fraction of instruments strictly between "
+            "0.5 and 1 (e.g. 0.95)"
+        )
+    return p
 
 
 @dataclasses.dataclass
@@ -356,7 +385,7 @@ class _Stack:
     included), then each realisation of each random term (one capture's exposure, one
     angle's standard)."""
 
-    def __init__(self, cs: list[_LBLCandidates]) -> None:
+    def __init__(self, cs: list[_LBLCandidates], assurance: float = ASSURANCE) -> None:
         c = cs[0]
         for x in cs[1:]:
             if (x.names != c.names or x.preset != c.preset or x.term_names != c.term_names
@@ -364,6 +393,7 @@ class _Stack:
                     or not np.array_equal(x.rotations, c.rotations)):  # fmt: skip
                 raise DesignError("design instruments with different candidates or budget terms")
         self.c, self.K, self.P = c, len(cs), len(c.names)
+        self.assurance = float(assurance)  # the level of the U bound over instruments
         from gonio.simulator.lbl_timing import TIMINGS
 
         self.timing = TIMINGS["ward1992" if c.preset == "ward1992" else "modern"]
@@ -556,14 +586,15 @@ def _u2(c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray,
 
 
 @functools.lru_cache
-def _spread_factor(k: int) -> float:
-    """One-sided 95 % prediction factor for the U of an instrument not yet seen, from ``k``
-    instruments' U (Student's t with k - 1 degrees of freedom, × √(1 + 1/k))."""
+def _spread_factor(k: int, assurance: float = 0.95) -> float:
+    """One-sided prediction factor at ``assurance`` for the U of an instrument not yet
+    seen, from ``k`` instruments' U (Student's t quantile at ``assurance`` with k - 1
+    degrees of freedom, × √(1 + 1/k); [Hahn1991]_ §4.6)."""
     if k < 2:
         return 0.0
     from scipy.special import stdtrit  # (Student's t quantile; scipy.stats costs 0.5 s)
 
-    return float(stdtrit(k - 1, 0.95) * math.sqrt(1.0 + 1.0 / k))
+    return float(stdtrit(k - 1, assurance) * math.sqrt(1.0 + 1.0 / k))
 
 
 def _U_all(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
@@ -572,12 +603,19 @@ def _U_all(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
     return 2.0 * np.sqrt(st.u2(amask, rmask, ridge, every))
 
 
-def _U95(U: NDArray) -> tuple[NDArray, NDArray]:
-    """(central U: the design instruments' mean, U at 95 % over instruments)."""
+def _U95(U: NDArray, assurance: float = ASSURANCE) -> tuple[NDArray, NDArray]:
+    """(central U: the design instruments' mean, U at ``assurance`` over instruments: the
+    one-sided prediction bound of :func:`_spread_factor`)."""
     m = U.mean(axis=0)
     if U.shape[0] < 2:
         return m, m
-    return m, m + _spread_factor(U.shape[0]) * U.std(axis=0, ddof=1)
+    return m, m + _spread_factor(U.shape[0], float(assurance)) * U.std(axis=0, ddof=1)
+
+
+def _U95_of(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
+            every: int = 0) -> tuple[NDArray, NDArray]:  # fmt: skip
+    """:func:`_U95` of the plan's U on the stack's design instruments, at its assurance."""
+    return _U95(_U_all(st, amask, rmask, ridge, every), st.assurance)
 
 
 def _n_anchors(n_angles: int, n_rotations: int, every: int) -> int:
@@ -625,6 +663,7 @@ class LBLDesign:
     n_instruments: int = 1
     bracket_min_signal_dn: float | None = None  # None: the instrument's own threshold
     brackets_tried: dict[str, Any] = dataclasses.field(default_factory=dict)
+    assurance: float = ASSURANCE  # the level of predicted_95 (:data:`ASSURANCE`)
 
     def table(self) -> str:
         re = (f"standard re-measured every {self.restandard_every} angle(s) of each rotation"
@@ -641,7 +680,8 @@ class LBLDesign:
                 if self.bracket_min_signal_dn is None
                 else f"automatic at {self.bracket_min_signal_dn:g} DN (bracket_min_signal_dn)"
             ),
-            f"  {'parameter':<10}{'target U':>12}{'designed U':>12}{'U (95 %)':>12}"
+            f"  {'parameter':<10}{'target U':>12}{'designed U':>12}"
+            f"{f'U ({100 * self.assurance:g} %)':>12}"
             f"{'default U':>12}",
         ]
         for p, u in self.predicted.items():
@@ -651,7 +691,8 @@ class LBLDesign:
                          f"{self.default['predicted'][p]:>12.4g}")  # fmt: skip
         n_t = len(self.targets) - len(self.unreachable)
         lines.append(
-            f"  targets met (predicted at 95 % over {self.n_instruments} design instruments): "
+            f"  targets met (predicted at {100 * self.assurance:g} % over instruments, from "
+            f"{self.n_instruments} design instruments): "
             f"{n_t - len(self.not_met)}/{n_t}; design {self.design_s:.1f} s"
         )
         for p, u in self.unreachable.items():
@@ -684,6 +725,7 @@ def design_lbl(
     truth: Any = None,
     workers: int | None = None,
     brackets: bool = False,
+    assurance: float = ASSURANCE,
 ) -> LBLDesign:
     """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
     parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
@@ -714,6 +756,7 @@ def design_lbl(
         raise DesignError(f"default factor {default_factor!r}: expected a positive number")
     if not 0.0 <= margin < 1.0:
         raise DesignError(f"margin {margin!r}: expected a fraction in [0, 1)")
+    assurance = check_assurance(assurance)
     tg = parse_targets(None) if targets is None else targets
     if candidates is None:  # the cheap checks before the candidate campaign
         _precheck(material, tg, preset, time_limit_h)
@@ -736,7 +779,8 @@ def design_lbl(
             min_signal_dn=None if dn == BRACKET_DN else dn,
         )
 
-    d = _design(material, tg, sets(BRACKET_DN), time_limit_h, default_factor, margin, t0)
+    d = _design(material, tg, sets(BRACKET_DN), time_limit_h, default_factor, margin, t0,
+                assurance)  # fmt: skip
     if brackets:
         d = _design_brackets(d, sets, time_limit_h, margin, t0)
     return d
@@ -760,7 +804,7 @@ def _design_brackets(d: LBLDesign, sets: Any, time_limit_h: float | None, margin
     wins. Its ``brackets_tried`` records both."""
     dn = BRACKET_DN_BRIGHTER if d.not_met else BRACKET_DN_QUICKER
     tg = {p: (t, False) for p, t in d.targets.items()}
-    d2 = _design(d.material, tg, sets(dn), time_limit_h, None, margin, t0)
+    d2 = _design(d.material, tg, sets(dn), time_limit_h, None, margin, t0, d.assurance)
     tried = {}
     for x, v in ((d, BRACKET_DN), (d2, dn)):
         tried[f"{v:g}"] = {
@@ -782,11 +826,11 @@ def _design_brackets(d: LBLDesign, sets: Any, time_limit_h: float | None, margin
 
 def _design(
     material: str, tg: dict, cs: list[_LBLCandidates], time_limit_h: float | None,
-    default_factor: float | None, margin: float, t0: float,
+    default_factor: float | None, margin: float, t0: float, assurance: float = ASSURANCE,
 ) -> LBLDesign:  # fmt: skip
     """:func:`design_lbl` on the candidate sets ``cs``."""
     c = cs[0]
-    st = _Stack(cs)
+    st = _Stack(cs, assurance)
     valid = set(c.names) | {"all"}
     for name in tg:
         if name not in valid:
@@ -798,7 +842,7 @@ def _design(
     all_a = np.ones(len(c.angles), bool)
     all_r = np.ones(len(c.rotations), bool)
     zero = np.zeros(P)
-    u_def, u_def95 = _U95(_U_all(st, all_a, all_r, zero))
+    u_def, u_def95 = _U95_of(st, all_a, all_r, zero)
     default = {"n_angles": len(c.angles), "n_rotations": len(c.rotations),
                "hours": st.hours(all_a, all_r),
                "predicted": dict(zip(c.names, map(float, u_def))),
@@ -827,14 +871,14 @@ def _design(
         for i, p in enumerate(c.names):
             if not math.isfinite(t2[i]):
                 continue
-            _, u95 = _U95(_U_all(st, best[3], best[4], zero, best[2]))
+            _, u95 = _U95_of(st, best[3], best[4], zero, best[2])
             if u95[i] ** 2 <= t2[i]:
                 continue
             alone = np.full(P, math.inf)
             alone[i] = t2[i]
             b1 = _search(st, alone, ridge, limit)
             if b1[0]:
-                _, f95 = _U95(_U_all(st, b1[3], b1[4], zero, b1[2]))
+                _, f95 = _U95_of(st, b1[3], b1[4], zero, b1[2])
                 unreachable[p] = {"target": tabs[p], "floor": float(f95[i]),
                                   "dominant": _dominant_term(st, b1[3], b1[4], i)}  # fmt: skip
                 t2[i] = math.inf
@@ -848,7 +892,7 @@ def _design(
             best = (phi > 0, st.hours(am, rm, ev) if phi <= 0 else phi, ev, am, rm)
     _, _, every, amask, rmask = best
     every = min(int(every), int(amask.sum()))  # (the same anchors; a plan refuses a larger one)
-    u, u95 = _U95(_U_all(st, amask, rmask, zero, every))
+    u, u95 = _U95_of(st, amask, rmask, zero, every)
     pred = dict(zip(c.names, map(float, u)))
     pred95 = dict(zip(c.names, map(float, u95)))
     cadence = _cadence_table(st, amask, rmask, zero, t2)
@@ -856,14 +900,14 @@ def _design(
         material, tuple(map(float, c.angles[amask])), tuple(map(float, c.rotations[rmask])),
         tabs, pred, st.hours(amask, rmask, every), default, time.perf_counter() - t0,
         [p for p in tabs if p not in unreachable and pred95[p] > tabs[p]], pred95, int(every),
-        unreachable, cadence, len(cs),
+        unreachable, cadence, len(cs), assurance=st.assurance,
     )  # fmt: skip
 
 
 def _phi(st: _Stack, amask: NDArray, rmask: NDArray, every: int,
          t2: NDArray) -> float:  # fmt: skip
     zero = np.zeros(st.P)
-    _, u95 = _U95(_U_all(st, amask, rmask, zero, every))
+    _, u95 = _U95_of(st, amask, rmask, zero, every)
     return float(_objective(u95**2 / 4.0, zero, t2))
 
 
@@ -885,7 +929,7 @@ def _search(st: _Stack, t2: NDArray, ridge: NDArray, limit: float) -> tuple:
                 amask = _greedy_angles(st, rmask, t2, ridge, limit, every)
                 if not amask.any():
                     continue
-                _, u95 = _U95(_U_all(st, amask, rmask, zero, every))
+                _, u95 = _U95_of(st, amask, rmask, zero, every)
                 phi = float(_objective(u95**2 / 4.0, zero, t2))
                 h = st.hours(amask, rmask, every)
                 cand = (phi > 0, h if phi <= 0 else phi, every, amask, rmask)
@@ -921,7 +965,7 @@ def _cadence_table(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
     for every in CADENCES:
         if every > int(amask.sum()):
             continue
-        _, u95 = _U95(_U_all(st, amask, rmask, ridge, every))
+        _, u95 = _U95_of(st, amask, rmask, ridge, every)
         out[str(every)] = {"hours": round(st.hours(amask, rmask, every), 5),
                            "targets_met": bool(_objective(u95**2 / 4.0, ridge, t2) <= 0),
                            "U_95": dict(zip(c.names, map(float, u95)))}  # fmt: skip
@@ -969,7 +1013,7 @@ def _greedy_angles(
     def phi_of(m: NDArray, rid: NDArray = ridge) -> float:
         if not m.any():
             return math.inf
-        _, u95 = _U95(_U_all(st, m, rmask, rid, every))
+        _, u95 = _U95_of(st, m, rmask, rid, every)
         return float(_objective(u95**2 / 4.0, zero, t2))
 
     cur = math.inf
@@ -1052,6 +1096,7 @@ def write_lbl_plan(path: Any, d: LBLDesign) -> None:
            "rotations_deg": list(d.rotations_deg), "restandard_every": d.restandard_every,
            "estimated_real_instrument_h": round(d.hours, 5),
            "predicted_U": d.predicted, "predicted_U_95": d.predicted_95,
+           "assurance": d.assurance,
            "targets_U": d.targets, "unreachable": d.unreachable,
            "cadence": {"restandard_every": d.restandard_every, "exposures_s": "auto",
                        "tried": d.cadence}}  # fmt: skip
