@@ -424,7 +424,9 @@ class _Stack:
         self.has_lamp = np.array([bool(x.u_lamp) for x in cs])
         self._clocks: dict[tuple, tuple] = {}
         self._hours: dict[tuple, float] = {}
+        self._seconds: dict[tuple, NDArray] = {}
         self._schedules: dict[tuple, list] = {}
+        self._u95: dict[tuple, tuple] = {}  # (:func:`_U95_of`)
         self._bracket_parts(cs)
 
     def _bracket_parts(self, cs: list[_LBLCandidates]) -> None:
@@ -468,6 +470,16 @@ class _Stack:
         key = (amask.tobytes(), rmask.tobytes(), every)
         if key not in self._hours:
             tm = self.timing
+            t = self._capture_s(amask, rmask)
+            n_a = _n_anchors(int(amask.sum()), int(rmask.sum()), int(every))
+            self._hours[key] = float(np.mean(t + 2.0 * tm.swap_s * n_a)) / 3600.0
+        return self._hours[key]
+
+    def _capture_s(self, amask: NDArray, rmask: NDArray) -> NDArray:
+        """The plan's seconds without its re-measured standards, (K,): once per plan, not
+        per cadence (:meth:`hours` adds the anchors' swaps)."""
+        key = (amask.tobytes(), rmask.tobytes())
+        if key not in self._seconds:
             sch = self._schedule(amask, rmask)
             caps = [e for e in sch if e["kind"] != "manual"]
             idx = np.array([self._cap[(e["kind"], e["theta_i_deg"], e["rotation_deg"])]
@@ -475,10 +487,9 @@ class _Stack:
             # the moves and manual steps: the schedule less its captures' own time
             base = sch[-1]["end_s"] - sum(e["end_s"] - e["start_s"] for e in caps)
             iris = (self.FL[:, idx[:-1]] != self.F0[:, idx[1:]]).sum(axis=1)
-            t = base + self.W[:, idx].sum(axis=1) + tm.stop_change_s * iris
-            n_a = _n_anchors(int(amask.sum()), int(rmask.sum()), int(every))
-            self._hours[key] = float(np.mean(t + 2.0 * tm.swap_s * n_a)) / 3600.0
-        return self._hours[key]
+            self._seconds[key] = (base + self.W[:, idx].sum(axis=1)
+                                  + self.timing.stop_change_s * iris)  # fmt: skip
+        return self._seconds[key]
 
     def _lamp(self, amask: NDArray, rmask: NDArray, every: int) -> tuple:
         """The plan's lamp shapes ``f(t_m, t_s)`` (na, nr) per lamp term, less what the
@@ -614,8 +625,15 @@ def _U95(U: NDArray, assurance: float = ASSURANCE) -> tuple[NDArray, NDArray]:
 
 def _U95_of(st: _Stack, amask: NDArray, rmask: NDArray, ridge: NDArray,
             every: int = 0) -> tuple[NDArray, NDArray]:  # fmt: skip
-    """:func:`_U95` of the plan's U on the stack's design instruments, at its assurance."""
-    return _U95(_U_all(st, amask, rmask, ridge, every), st.assurance)
+    """:func:`_U95` of the plan's U on the stack's design instruments, at its assurance;
+    once per plan (the stack keeps it: the searches of one design, the targets' own
+    searches for their floors, the exchanges and the backward passes, predict many of the
+    same plans again)."""
+    key = (amask.tobytes(), rmask.tobytes(), int(every), ridge.tobytes())
+    got = st._u95.get(key)
+    if got is None:
+        got = st._u95[key] = _U95(_U_all(st, amask, rmask, ridge, every), st.assurance)
+    return got
 
 
 def _n_anchors(n_angles: int, n_rotations: int, every: int) -> int:
