@@ -40,7 +40,8 @@ def add_arguments(parser) -> None:
         default=6,
         metavar="K",
         help="lbl: instruments of the preset the candidate campaign runs on (1-10, default 6; "
-        "each about 4 s): the design meets each target at the U at 95 %% over them",
+        "each about 4 s): the design meets each target at the U at --assurance over the "
+        "preset's instruments, bounded from them",
     )
     parser.add_argument(
         "--assurance",
@@ -49,7 +50,10 @@ def add_arguments(parser) -> None:
         metavar="P",
         help="lbl: the fraction of the preset's instruments on which each target is to be met "
         "(0.5 < P < 1; default 0.95): the design bounds each U at P over instruments, from "
-        "the design instruments",
+        "the design instruments. A target whose floor at P is above it is not chased, so a "
+        "higher P can chase fewer: measured on rolled brass (modern, 20 instruments, targets "
+        "1.25 x the default U), 0.95 met 57/60 reachable targets with 7 x 2 angles x "
+        "rotations, 0.975 and 0.99 gave up rho_s for a 1 x 1 plan",
     )
     parser.add_argument(
         "--brackets",
