@@ -110,7 +110,19 @@ median of 4 runs (22.9-26.9), against 28.6 s (27.9-34.0) before, when the search
 each instrument apart (A/B pairs 0.83, 0.78-0.92); 20.5 s wall (20.2 s of processor time) in a
 run whose core was free. The search takes 1.2-2.0 s (it took 6.4 s; with the plans' hours
 from their brackets and the exchanges, 3.2-3.5 s against 2.2-2.8 s on the same six
-candidate sets, three runs each, load average 1.9-2.5); the rest is the six
+candidate sets, three runs each, load average 1.9-2.5). Each plan's bound is now
+predicted once per design (:func:`_U95_of`: the rotation sets' cadences, the targets' own
+searches for their floors, the exchanges and the backward passes meet the same plans again;
+at F = 1.25, 3539 of 5471 predictions computed) and its seconds once per plan, not per
+cadence: the same design in every field (F = 1, 1.25, 1.5, 2 at 0.95 and 0.99), the search
+1.47-2.74 s against 2.04-2.99 s (five alternating pairs on the same candidate sets, B/A
+median 0.73, load average 0.8-0.9); about 1.7 s on a quiet machine, of which 0.9 s the
+plans' budgets (3540, 0.25 ms each) and 0.4 s their hours (0.3 s the schedules). In the
+whole process the difference is within the noise: nine alternating pairs (before / after)
+15.5/17.1, 15.9/17.2, 19.8/16.4 s wall at load average 1.5-1.7 (the search 2.0/2.2,
+2.0/1.5, 3.1/1.6 s; the warm-up 1.7-2.0 s, the candidate campaigns 11.8-15.0 s),
+22.5/22.5, 18.6/20.9, 20.8/21.8 s at 1.3-1.6, 34.0/40.1, 40.6/33.9, 21.9/27.1 s at 2.1-3.5
+(other benchmarks running); the search's B/A median 0.77 (0.49-1.40). The rest is the six
 candidate campaigns, 2.8-3.9 s of processor time each, and the design uses all they do:
 the captures and their reduction (about 80 %: the samples, their σ, each capture's
 residuals), the fit (the Jacobian) and the budget (every term's perturbation). They already
