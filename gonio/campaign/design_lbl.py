@@ -98,7 +98,7 @@ prediction (1.19 and 1.26 on the F = 1.5 plans); its sample-tilt term's u of α_
 against 2.9e-5 and 3.7e-5 on instruments 0 and 3 (the largest term on instrument 5; the
 blur's, 5.5e-5, on 0 and 3): a tail of the instruments' spread that the six design
 instruments do not show. The truth outside the achieved U (F = 1.25, 0.95): ρs on
-instruments 1, 5 and 13 (|fit - truth| 1.13, 1.08 and 1.00 times U; those U 0.96-0.98 times
+instruments 1, 5 and 13 (the fit's error 1.13, 1.08 and 1.00 times U; those U 0.96-0.98 times
 the prediction, not small) and α_x on instrument 4 (1.08; U 0.95 times the prediction):
 76/80, the k = 2 coverage (95.4 %) expected. Over the 20 instruments (fit - truth) / U has
 mean -0.07 and RMS 0.61 for ρs (0.5 expected of a normal error at k = 2), mean 0.25 (14/20
@@ -656,7 +656,8 @@ def _u2(c: _LBLCandidates, amask: NDArray, rmask: NDArray, ridge: NDArray,
 def _spread_factor(k: int, assurance: float = 0.95) -> float:
     """One-sided prediction factor at ``assurance`` for the U of an instrument not yet
     seen, from ``k`` instruments' U (Student's t quantile at ``assurance`` with k - 1
-    degrees of freedom, × √(1 + 1/k); [Hahn1991]_ ch. 4)."""
+    degrees of freedom, × √(1 + 1/k); Hahn and Meeker 1991, ch. 4: the module's
+    References)."""
     if k < 2:
         return 0.0
     from scipy.special import stdtrit  # (Student's t quantile; scipy.stats costs 0.5 s)
