@@ -91,9 +91,10 @@ print(tight.unreachable)
 # schedule, the fit's χ²/dof) included, to 0.1 % of what that plan's campaign on the same
 # instrument reports; and its hours from the brackets the instrument chose for those
 # captures (their frames and iris changes), as that campaign's own. What it cannot know is
-# which instrument will measure: the ``U (95 %)`` column is the U at 95 % over the design
-# instruments (a Student prediction bound from them),
-# and the targets are met by it; ``designed U`` is their mean. ``gonio design --instrument
+# which instrument will measure: the ``U (95 %)`` column is the U at 95 % over the preset's
+# instruments (a Student prediction bound from the design instruments; the level is the
+# design's ``assurance``, ``gonio design --assurance P``), and the targets are met by it;
+# ``designed U`` is their mean. ``gonio design --instrument
 # lbl --default-u 1`` takes the default plan's 21 angles as the candidates on six design
 # instruments (``--design-instruments K`` for another number; about 20-25 s on two cores).
 # To keep this page quick the candidates here are every 10° from 0° to 80° (the default

@@ -52,6 +52,10 @@ def test_design_writes_a_plan_the_campaign_reads(tmp_path, capsys):
         (["--preset", "cornell2005"], "not an lbl preset"),
         (["--design-instruments", "0"], "--design-instruments 0: expected 1 to 10"),
         (["--design-instruments", "11"], "--design-instruments 11: expected 1 to 10"),
+        (["--assurance", "1"], "--assurance 1.0: expected a fraction strictly between 0.5 and 1"),
+        (["--assurance", "0.5"], "--assurance 0.5: expected a fraction strictly between 0.5"),
+        (["--assurance", "nan"], "--assurance nan: expected a fraction strictly between 0.5"),
+        (["--assurance", "95"], "--assurance 95.0: expected a fraction strictly between 0.5"),
     ],
 )
 def test_lbl_bad_input_clear_error_nothing_written(tmp_path, capsys, argv, message):
@@ -108,8 +112,9 @@ def test_lbl_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
     assert not out.exists()
 
 
-def test_cornell_design_refuses_lbl_options(tmp_path, capsys):
-    argv = ["design", "--design-instruments", "2", "--out", str(tmp_path / "p.csv")]
+@pytest.mark.parametrize("option", [["--design-instruments", "2"], ["--assurance", "0.99"]])
+def test_cornell_design_refuses_lbl_options(tmp_path, capsys, option):
+    argv = ["design", *option, "--out", str(tmp_path / "p.csv")]
     assert main(argv) == 2
     assert "options of --instrument lbl only" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
