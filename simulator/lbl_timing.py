@@ -21,12 +21,13 @@ so a campaign's time is that of its brackets (:func:`brackets_of`: each capture'
 times and f-numbers, from its frames' metadata, which a laboratory's instrument records).
 A fixed three frames a capture, the estimate before, is too long: the default campaign
 (rolled brass, 21 angles x 3 rotations, instrument 0) took 146 frames on the ``modern``
-preset and 153 on ``ward1992``, not 315; its time from its own brackets is 229.4 s and 492.6 s, against 281.8 s
-(1.23 times) and 883.6 s (1.79 times) at three frames a capture. Its f-numbers count: the
-iris moves between captures too (the standard at f/2.8, the background at f/2, each sample
-capture from its own darkest stop), 69 and 82 changes against 41 and 48 within the brackets
-alone (221.0 s and 390.6 s from the exposure times alone). Instruments 0-9 of each preset
-took 227.1-231.7 s (``modern``) and 465.3-692.1 s (``ward1992``: 147-189 frames).
+preset and 153 on ``ward1992``, not 315; its time from its own brackets is 229.4 s and 492.6
+s, against 281.8 s (1.23 times) and 883.6 s (1.79 times) at three frames a capture. Its
+f-numbers count: the iris moves between captures too (the standard at f/2.8, the background
+at f/2, each sample capture from its own darkest stop), 69 and 82 changes against 41 and 48
+within the brackets alone (221.0 s and 390.6 s from the exposure times alone). Instruments
+0-9 of each preset took 227.1-231.7 s (``modern``) and 465.3-692.1 s (``ward1992``: 147-189
+frames).
 
 The campaign's lamp clock (:meth:`gonio.campaign.lbl._SimulatedLBL.clock_s`) is this
 schedule's time of each capture at three frames a capture (the lamp's warm-up and drift enter
