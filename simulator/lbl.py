@@ -36,8 +36,8 @@ façade over them; a capture goes through them in the order the light does:
 - :mod:`~gonio.simulator.lbl_frame`: a frame of the scene at an f-number (lens aperture,
   lamp, point spread), read out by :mod:`~gonio.simulator.lbl_readout` (response, dark,
   noise, ADC, binning) (lens, sensor);
-- :mod:`~gonio.simulator.lbl_exposure`: the bracket's f-stops; :mod:`~gonio.simulator.
-  lbl_calibration`: the sensor's dark and flat-field captures.
+- :mod:`~gonio.simulator.lbl_exposure`: the bracket's f-stops;
+  :mod:`~gonio.simulator.lbl_calibration`: the sensor's dark and flat-field captures.
 
 Radiometry (photon units, see :mod:`gonio.simulator.source`): a sample point lit by the beam
 (irradiance ``E`` normal to the beam, dome transmittance ``T``) reflects radiance

@@ -2,9 +2,9 @@
 EMVA 1288 set-ups a laboratory uses for the sensor's dark signal, gain, PRNU and photon
 transfer curve.
 
-This part knows the pixels and their read-out (:class:`~gonio.simulator.lbl_readout.
-Readout`) and the instrument's description for the side-car; no light passes the dome,
-the lens or the sample.
+This part knows the pixels and their read-out
+(:class:`~gonio.simulator.lbl_readout.Readout`) and the instrument's description for the side-car;
+no light passes the dome, the lens or the sample.
 
 References
 ----------

@@ -113,8 +113,9 @@ class Frames:
         return self.readout.finish(e, False, None, binning)
 
     def plan(self, sc: Scene, f_stops, min_signal_dn, headroom, skip_stops=True) -> dict[str, Any]:
-        """The f-stops a bracket of ``sc`` needs (:func:`~gonio.simulator.lbl_exposure.
-        plan_stops` with this sensor, these frames' composition and the dark map)."""
+        """The f-stops a bracket of ``sc`` needs
+        (:func:`~gonio.simulator.lbl_exposure.plan_stops` with this sensor, these frames'
+        composition and the dark map)."""
         return plan_stops(
             sc, f_stops, min_signal_dn, headroom, skip_stops, self.sensor, self.compose,
             self.readout.dark,

@@ -4,8 +4,8 @@ and reflected direction, traced once per instrument optics and cached (:class:`G
 This part knows the dome (:class:`~gonio.simulator.optics.Mirror`), the lens
 (:class:`~gonio.simulator.lenses.FisheyeLens`) and the sample's radius — nothing of the
 sensor, the source or the sample's BRDF. The true instrument's deviations from this ideal
-trace (the dome's figure, occlusion, a raised or tilted sample) are :mod:`gonio.simulator.
-lbl_pose`'s.
+trace (the dome's figure, occlusion, a raised or tilted sample) are
+:mod:`gonio.simulator.lbl_pose`'s.
 
 References
 ----------

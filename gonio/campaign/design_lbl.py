@@ -311,8 +311,8 @@ def lbl_candidates(
 ) -> _LBLCandidates:
     """Run the candidate campaign and decompose its budget by capture (module docstring).
     ``truth``: the prior's model (default the material preset's), e.g. a pilot's fit;
-    ``min_signal_dn``: the brackets' threshold (:attr:`gonio.campaign.plan.Plan.
-    bracket_min_signal_dn`; None: the instrument's own)."""
+    ``min_signal_dn``: the brackets' threshold
+    (:attr:`gonio.campaign.plan.Plan.bracket_min_signal_dn`; None: the instrument's own)."""
     from gonio import campaign
     from gonio.campaign.budget import Sensitivity
     from gonio.fit import predict
@@ -586,11 +586,12 @@ class _Stack:
         The exposure table's ``u``: the RMS over the plan's captures with stops. The lamp:
         each sample capture's time ``t_m`` and its standard's ``t_s`` from the plan's
         schedule (:func:`gonio.simulator.lbl_timing.schedule`, three frames a capture, as
-        the campaign's lamp clock), ``δy = y f(t_m, t_s)`` (:func:`gonio.campaign.
-        budget_terms.lamp_terms`); with the standard re-measured after every ``every``-th
-        angle of each rotation (a swap after the sample's capture, as :meth:`gonio.campaign.
-        lbl.SimulatedInstrument.shoot_restandard` stamps it), what the interpolation between
-        those anchors leaves, and each anchor's own exposure scatter (``√2 u``)."""
+        the campaign's lamp clock), ``δy = y f(t_m, t_s)``
+        (:func:`gonio.campaign.budget_terms.lamp_terms`); with the standard re-measured after every
+        ``every``-th angle of each rotation (a swap after the sample's capture, as
+        :meth:`gonio.campaign.lbl.SimulatedInstrument.shoot_restandard` stamps it), what the
+        interpolation between those anchors leaves, and each anchor's own exposure scatter
+        (``√2 u``)."""
         sel = (amask[:, None] & rmask[None, :]).reshape(-1)
         cols, names = [], []
         t2 = self.tab2[:, sel]
@@ -707,10 +708,10 @@ def plan_hours(
     """Real-instrument hours of an LBL plan
     (:func:`~gonio.simulator.lbl_timing.estimate_run_time`) with the instrument's
     ``brackets``: ``{(kind, θi, rotation): [(exposure_s, f_number), ...]}`` of every
-    capture of the plan (a campaign's own, :attr:`gonio.campaign.lbl.LBLCampaignResult.
-    brackets`, or the candidate campaign's for a plan of its captures), or a number of
-    frames a capture (1: the least a plan can take); plus two swaps (sample out, standard
-    in and back) for each re-measured standard."""
+    capture of the plan (a campaign's own,
+    :attr:`gonio.campaign.lbl.LBLCampaignResult.brackets`, or the candidate campaign's for a plan of
+    its captures), or a number of frames a capture (1: the least a plan can take); plus two swaps
+    (sample out, standard in and back) for each re-measured standard."""
     from gonio.simulator.lbl_timing import TIMINGS, estimate_run_time
 
     timing = TIMINGS["ward1992" if preset == "ward1992" else "modern"]
@@ -806,10 +807,10 @@ def design_lbl(
     brackets: bool = False,
     assurance: float = ASSURANCE,
 ) -> LBLDesign:
-    """Design an LBL plan (module docstring). ``targets`` as :func:`gonio.campaign.design.
-    parse_targets` gives them; ``default_factor = f`` sets every target to ``f`` times the
-    default plan's predicted (central) U instead (``1``: the default plan's uncertainty).
-    ``truth``: the prior's model (default the material preset's; the adaptive campaign
+    """Design an LBL plan (module docstring). ``targets`` as
+    :func:`gonio.campaign.design.parse_targets` gives them; ``default_factor = f`` sets every target
+    to ``f`` times the default plan's predicted (central) U instead (``1``: the default plan's
+    uncertainty). ``truth``: the prior's model (default the material preset's; the adaptive campaign
     gives its pilot's fit).
 
     The calibration of each physical instrument leaves it its own uncertainties (its f-stop

@@ -495,8 +495,9 @@ class _SimulatedLBL:
         return self.inst.certificate()
 
     def clock_s(self, sample: Any, theta_i: float, phi_i: float) -> float:
-        """When the real instrument would take this capture (:func:`~gonio.simulator.
-        lbl_timing.schedule` of the plan, three frames a capture): the lamp's clock."""
+        """When the real instrument would take this capture
+        (:func:`~gonio.simulator.lbl_timing.schedule` of the plan, three frames a capture): the
+        lamp's clock."""
         if self._clock is None:
             from gonio.simulator.lbl_timing import TIMINGS, schedule
 

@@ -145,11 +145,12 @@ class Plan:
         capture by it, interpolated in time. 0 (default): no re-measurement. Each
         re-measurement adds two manual swaps to the real instrument's run time.
     bracket_min_signal_dn : float, optional
-        The automatic bracket's threshold (:meth:`gonio.simulator.lbl.LBLInstrument.
-        plan_bracket` ``min_signal_dn``): a wider stop is kept only if it brings a lit pixel
-        at least this many DN above the background that no kept stop covered. None
-        (default): the instrument's own, 16 DN. Higher takes more frames a capture (each
-        pixel from a brighter frame), lower fewer (``gonio design --brackets`` chooses it).
+        The automatic bracket's threshold
+        (:meth:`gonio.simulator.lbl.LBLInstrument.plan_bracket` ``min_signal_dn``): a wider stop is
+        kept only if it brings a lit pixel at least this many DN above the background that no kept
+        stop covered. None (default): the instrument's own, 16 DN. Higher takes more frames a
+        capture (each pixel from a brighter frame), lower fewer (``gonio design --brackets`` chooses
+        it).
     """
 
     material: str = "rolled_brass"
