@@ -229,6 +229,7 @@ def adaptive_lbl(
     time_limit_h: float | None = None,
     n_instruments: int = 6,
     candidate_angles_deg: tuple[float, ...] | None = None,
+    assurance: float | None = None,
 ) -> dict[str, Any]:
     """The LBL adaptive campaign: a pilot (:data:`LBL_PILOT_ANGLES`, ``out/pilot``), the
     design from its fit (:func:`gonio.campaign.design_lbl.design_lbl`: its three design
@@ -240,7 +241,9 @@ def adaptive_lbl(
     (the candidate campaigns' brackets). The final U is the main campaign's alone.
     ``n_instruments`` (1-10) design instruments (the k-th at the k-th prior modulo 3),
     ``candidate_angles_deg`` the design's candidate incidence angles (default the default
-    plan's)."""
+    plan's), ``assurance`` the fraction of the preset's instruments on which the design
+    meets each target (:func:`gonio.campaign.design_lbl.design_lbl`; default
+    :data:`gonio.campaign.design_lbl.ASSURANCE`), recorded in the design stage."""
     from gonio import campaign
     from gonio.campaign import design, design_lbl
 
@@ -249,6 +252,7 @@ def adaptive_lbl(
         raise design.DesignError(f"time limit {time_limit_h!r} h: expected a positive number")
     if not (isinstance(n_instruments, int) and 1 <= n_instruments <= 10):
         raise design.DesignError(f"n_instruments {n_instruments!r}: expected 1 to 10")
+    p = design_lbl.ASSURANCE if assurance is None else design_lbl.check_assurance(assurance)
     design_lbl._precheck(material, tg, preset, time_limit_h)  # before the pilot runs
     outp = Path(out)
     kw = dict(material=material, seed=seed, instrument_seed=instrument_seed, preset=preset,
@@ -273,13 +277,13 @@ def adaptive_lbl(
     cands = design_lbl.candidate_sets(material, priors, preset=preset,
                                       angles_deg=candidate_angles_deg)  # fmt: skip
     res = design_lbl.design_lbl(material, tg, preset=preset, time_limit_h=left,
-                                candidates=cands)  # fmt: skip
+                                candidates=cands, assurance=p)  # fmt: skip
     plan_file = outp / "designed_plan.json"
     design_lbl.write_lbl_plan(plan_file, res)
     stages["design"] = {
         "wall_s": time.perf_counter() - t1, "n_angles": len(res.theta_i_deg),
         "n_rotations": len(res.rotations_deg), "restandard_every": res.restandard_every,
-        "predicted_real_instrument_h": res.hours,
+        "predicted_real_instrument_h": res.hours, "assurance": res.assurance,
         "prior": [{k: float(np.asarray(v).ravel()[0]) for k, v in m.params.items()
                    if k in pilot.fit.free} for m in priors],
     }  # fmt: skip

@@ -79,6 +79,14 @@ def _plan_options(group) -> None:
         help="--adaptive: target expanded uncertainty, as gonio design takes it",
     )
     group.add_argument(
+        "--assurance",
+        type=float,
+        default=None,
+        metavar="P",
+        help="--adaptive, lbl: the fraction of the preset's instruments on which the design "
+        "meets each target (0.5 < P < 1; default 0.95), as gonio design takes it",
+    )
+    group.add_argument(
         "--through-drivers",
         action="store_true",
         help="cornell: drive fake ESP300 and USB2000+ devices through the drivers",
@@ -255,6 +263,7 @@ def parse_noise(text: str) -> float:
 
 #: Options of one instrument only -> the value that means "not given".
 _LBL_ONLY = {
+    "--assurance": ("assurance", None),
     "--model": ("model", None),
     "--mirror": ("mirror", None),
     "--angles": ("angles", None),
@@ -354,7 +363,8 @@ def _run_adaptive(args) -> int:
     check_outputs({}, {"--out": out, "--json": args.json})
     kw = dict(seed=args.seed, instrument_seed=args.instrument_seed)
     if lbl:
-        s = da.adaptive_lbl(material, targets, out, preset=_preset(args, "lbl", "modern"), **kw)
+        s = da.adaptive_lbl(material, targets, out, preset=_preset(args, "lbl", "modern"),
+                            assurance=args.assurance, **kw)  # fmt: skip
     else:
         s = da.adaptive_cornell(material, targets, out,
                                 preset=_preset(args, "cornell", "cornell2005"), **kw)  # fmt: skip
@@ -404,6 +414,8 @@ def run(args) -> int:
         return _run_adaptive(args)
     if args.target:
         raise ValueError("--target: an option of --adaptive (gonio design takes targets too)")
+    if args.assurance is not None:
+        raise ValueError("--assurance: an option of --adaptive (gonio design takes it too)")
     from gonio import campaign
 
     args.material = args.material or "rolled_brass"

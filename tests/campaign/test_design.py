@@ -309,8 +309,10 @@ def test_lbl_adaptive_campaign_stages(tmp_path):
     from gonio.campaign.plan import read_plan_file
 
     s = adaptive_lbl("rolled_brass", d.parse_targets(["all=5%"]), tmp_path / "a",
-                     n_instruments=1, candidate_angles_deg=(20.0, 40.0, 60.0))  # fmt: skip
+                     n_instruments=1, candidate_angles_deg=(20.0, 40.0, 60.0),
+                     assurance=0.9)  # fmt: skip
     st = s["stages"]
+    assert st["design"]["assurance"] == 0.9
     assert st["pilot"]["n_angles"] == len(LBL_PILOT_ANGLES) and st["pilot"]["n_rotations"] == 2
     assert st["pilot"]["real_instrument_h"] > 0 and st["main"]["real_instrument_h"] > 0
     assert s["real_instrument_h"] == pytest.approx(
@@ -323,6 +325,7 @@ def test_lbl_adaptive_campaign_stages(tmp_path):
     main = json.loads((tmp_path / "a" / "main" / "plan.json").read_text())
     assert tuple(main["theta_i_deg"]) == plan["theta_i_deg"]
     assert main["restandard_every"] == plan["restandard_every"]
+    assert json.loads((tmp_path / "a" / "designed_plan.json").read_text())["assurance"] == 0.9
     assert set(s["final"]) == {"rho_d", "rho_s", "alpha_x", "alpha_y"}
     for p, f in s["final"].items():
         assert f["met"] == (f["achieved_U"] <= f["target"]) and f["achieved_U"] > 0, p
@@ -336,4 +339,6 @@ def test_lbl_adaptive_refuses_a_bad_target_before_the_pilot(tmp_path):
         adaptive_lbl("rolled_brass", d.parse_targets(["tau=1%"]), tmp_path / "a")
     with pytest.raises(d.DesignError, match="n_instruments 11"):
         adaptive_lbl("rolled_brass", None, tmp_path / "a", n_instruments=11)
+    with pytest.raises(d.DesignError, match=r"assurance 1\.0: expected a fraction"):
+        adaptive_lbl("rolled_brass", None, tmp_path / "a", assurance=1.0)
     assert not (tmp_path / "a").exists()

@@ -86,6 +86,7 @@ def test_campaign_runs_an_lbl_plan_file(tmp_path, capsys):
         (["--adaptive", "--target", "alpha_x=1%"], "'alpha_x' is not a fitted parameter"),
         (["--adaptive", "--plan", "hemispherical"], "--adaptive: designs its own plan"),
         (["--target", "tau=1%"], "--target: an option of --adaptive"),
+        (["--adaptive", "--assurance", "0.9"], "--assurance: option(s) of --instrument lbl"),
     ],
 )
 def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
@@ -103,6 +104,8 @@ def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
         (["--adaptive", "--angles", "10,20"], "--adaptive: designs its own plan (no --angles)"),
         (["--adaptive", "--restandard-every", "2"], "designs its own plan (no --restandard"),
         (["--target", "alpha_x=1%"], "--target: an option of --adaptive"),
+        (["--adaptive", "--assurance", "1.2"], "assurance 1.2: expected a fraction"),
+        (["--assurance", "0.9"], "--assurance: an option of --adaptive"),
     ],
 )
 def test_lbl_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
