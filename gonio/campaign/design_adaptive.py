@@ -310,6 +310,7 @@ def adaptive_lbl(
 def adaptive_lbl_text(s: dict[str, Any]) -> str:
     """A short report of an LBL adaptive campaign."""
     st = s["stages"]
+    level = f"{100 * st['design'].get('assurance', 0.95):g} %"  # the bound's level
     lines = [
         f"{s['material']} (lbl, adaptive): {s['real_instrument_h']:.3f} h on the real "
         f"instrument (estimated; the default plan {s['default_plan_h']:.3f} h)",
@@ -324,7 +325,7 @@ def adaptive_lbl_text(s: dict[str, Any]) -> str:
     for p, f in s["final"].items():
         lines.append(
             f"    {p}: target {f['target']:.3g}, predicted {f['predicted_U']:.3g} "
-            f"(95 %: {f['predicted_U_95']:.3g}), achieved {f['achieved_U']:.3g}"
+            f"({level}: {f['predicted_U_95']:.3g}), achieved {f['achieved_U']:.3g}"
             + (" (unreachable)" if f["unreachable"] else "")
         )
     return "\n".join(lines)

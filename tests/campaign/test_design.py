@@ -305,7 +305,7 @@ def test_lbl_adaptive_campaign_stages(tmp_path):
     preset's values), the designed plan; each stage's hours and the final U in the summary."""
     import json
 
-    from gonio.campaign.design_adaptive import LBL_PILOT_ANGLES, adaptive_lbl
+    from gonio.campaign.design_adaptive import LBL_PILOT_ANGLES, adaptive_lbl, adaptive_lbl_text
     from gonio.campaign.plan import read_plan_file
 
     s = adaptive_lbl("rolled_brass", d.parse_targets(["all=5%"]), tmp_path / "a",
@@ -313,6 +313,7 @@ def test_lbl_adaptive_campaign_stages(tmp_path):
                      assurance=0.9)  # fmt: skip
     st = s["stages"]
     assert st["design"]["assurance"] == 0.9
+    assert "(90 %: " in adaptive_lbl_text(s) and "(95 %: " not in adaptive_lbl_text(s)
     assert st["pilot"]["n_angles"] == len(LBL_PILOT_ANGLES) and st["pilot"]["n_rotations"] == 2
     assert st["pilot"]["real_instrument_h"] > 0 and st["main"]["real_instrument_h"] > 0
     assert s["real_instrument_h"] == pytest.approx(
