@@ -197,7 +197,7 @@ validation campaign's own brackets:
   ten's mean default U, 0.1-2 % from the six's): 3 angles x 2 rotations, 0.0196 h (0.30 of
   the default's); every reachable target met, 60/60 (α_x at most 0.84 times its target);
   achieved / predicted U median 1.000 (0.79-1.38), 78/80 within 25 %; truth within U 75/80
-  (ρs on instruments 1 and 5, α_x on 4 and 16, ρd on 7: |error| / U 1.03-1.20, each U 0.97-1.05
+  (ρs on instruments 1 and 5, α_x on 4 and 16, ρd on 7: ``|error| / U`` 1.03-1.20, each U 0.97-1.05
   times its prediction; 76 of 80 is the k = 2 expectation); ρd unreachable (floor 0.00124,
   target 0.00120), at or below it on 18/20. The design took 34.1 s (the ten candidate
   campaigns 32.0 s, the search 2.1 s; load average 1.5): the plan is smaller and meets every
