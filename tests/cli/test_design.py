@@ -87,6 +87,7 @@ def test_campaign_runs_an_lbl_plan_file(tmp_path, capsys):
         (["--adaptive", "--plan", "hemispherical"], "--adaptive: designs its own plan"),
         (["--target", "tau=1%"], "--target: an option of --adaptive"),
         (["--adaptive", "--assurance", "0.9"], "--assurance: option(s) of --instrument lbl"),
+        (["--adaptive", "--design-instruments", "8"], "--design-instruments: option(s) of"),
     ],
 )
 def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
@@ -106,6 +107,8 @@ def test_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
         (["--target", "alpha_x=1%"], "--target: an option of --adaptive"),
         (["--adaptive", "--assurance", "1.2"], "assurance 1.2: expected a fraction"),
         (["--assurance", "0.9"], "--assurance: an option of --adaptive"),
+        (["--adaptive", "--design-instruments", "11"], "n_instruments 11: expected 1 to 10"),
+        (["--design-instruments", "8"], "--design-instruments: an option of --adaptive"),
     ],
 )
 def test_lbl_adaptive_campaign_bad_input(tmp_path, capsys, argv, message):
