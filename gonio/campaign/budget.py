@@ -38,6 +38,7 @@ quantities), §6 (expanded uncertainty).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -179,6 +180,10 @@ class Perturbation:
         Where ``u`` comes from (certificate, calibration, specification).
     corrected : bool
         Whether the laboratory corrected the effect (``u`` is then what remains).
+    row : str, optional
+        The budget's row it is reported in (None: a row of its own): the realisations of
+        one Monte Carlo term (each with its own share of ``u``) share a row, whose
+        contribution is their root sum of squares and whose ``u`` theirs.
     """
 
     name: str
@@ -189,6 +194,7 @@ class Perturbation:
     groups: NDArray[np.int64] | None = None
     note: str = ""
     corrected: bool = True
+    row: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -326,9 +332,10 @@ def build_budget(
             contrib = np.sqrt(np.diag(cov_t))
         cov += cov_t
         terms.append(
-            Term(p.name, float(p.u), p.unit, p.kind,
+            Term(p.name if p.row is None else p.row, float(p.u), p.unit, p.kind,
                  {n: float(abs(c)) for n, c in zip(names, contrib)}, p.note, p.corrected)
         )  # fmt: skip
+    terms = _rows(terms)
     stat = {n: float(result.stderr[n]) for n in names}
     uc = {n: float(math.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
     for n in names:  # an unidentifiable parameter stays unbounded
@@ -346,6 +353,23 @@ def build_budget(
         k=float(k),
         correlation=corr,
     )
+
+
+def _rows(terms: list[Term]) -> list[Term]:
+    """Terms of one name merged into one row (in the place of the first): ``u`` and each
+    contribution the root sum of squares (the realisations of a Monte Carlo term,
+    :attr:`Perturbation.row`)."""
+    out: dict[str, Term] = {}
+    for t in terms:
+        got = out.get(t.name)
+        if got is None:
+            out[t.name] = t
+            continue
+        out[t.name] = dataclasses.replace(
+            got, u=math.hypot(got.u, t.u),
+            contribution={n: math.hypot(v, t.contribution[n]) for n, v in got.contribution.items()},
+        )  # fmt: skip
+    return list(out.values())
 
 
 def budget_table(budget: Mapping[str, Any]) -> str:

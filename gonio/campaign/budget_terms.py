@@ -78,6 +78,7 @@ __all__ = [
     "direction_terms",
     "exposure_terms",
     "glare_term",
+    "keep_direction_fields",
     "lamp_terms",
     "mean_over_pixels",
     "reillumination_term",
@@ -361,12 +362,24 @@ def _unit(w: NDArray) -> NDArray:
 
 #: cells per side of the equal-area square in which direction changes are averaged
 GRID = 48
-#: realisations of a random dome figure averaged for its term (Monte Carlo of its model)
-FIGURE_REALISATIONS = 4
+#: realisations of a random dome figure averaged for its term (Monte Carlo of its model;
+#: the same realisations for every instrument, so too few are a bias shared by all of
+#: them, not a scatter between them; reported as one row, ``dome_figure``). The figure's
+#: effect is heavy-tailed (a few realisations whose waves meet the lobe dominate its
+#: RMS), so the RMS converges slowly: rolled brass, modern, instrument 54, 3 angles x 2
+#: rotations, the alpha_x RMS of the first 4, 16, 32, 64, 128 and 256 realisations 5.28,
+#: 5.83, 5.85, 7.13, 8.28 and 8.30 x 1e-5 (rho_s 5.89, 6.62, 6.56, 7.85, 9.17 and 9.31 x
+#: 1e-4). 64 are 14 % below 256 there (4 were 36 % below): each realisation's samples'
+#: change is kept for the budget and the design (1.4 MB each on the default campaign), so
+#: more would cost memory as well as time (about 16 ms of processor time each in
+#: :func:`direction_fields`, kept with the calibration by :mod:`gonio.campaign.calcache`,
+#: and 4 ms each in :func:`direction_terms`).
+FIGURE_REALISATIONS = 64
 #: every how many pixels of the image circle the direction fields use
 FIELD_STRIDE = 4
-#: of those, every how many a ray is traced through a random dome figure
-FIGURE_STRIDE = 2
+#: of those, every how many a ray is traced through a random dome figure (4: the same
+#: instrument's U within 1.2 % of every second ray's, 128 realisations, 0.8 s less)
+FIGURE_STRIDE = 4
 #: RMS rim slope (rad) of the random figures traced for the term (then per unit slope): small
 #: enough that the direction change is linear in it (1 rad turned rays by 2 rad)
 FIGURE_STEP_RAD = 1e-3
@@ -441,6 +454,12 @@ def direction_fields(cal: Any) -> list[tuple[str, float, str, NDArray, bool]]:
         out += _figure_fields(mc, cam, wo0, ok0, slope, lens, uv[pix])
     cal.__dict__["_direction_fields"] = out
     return out
+
+
+def keep_direction_fields(cal: Any, fields: list) -> None:
+    """Give ``cal`` its direction fields made before (:func:`direction_fields` then returns
+    them): those of the same calibration kept by :mod:`gonio.campaign.calcache`."""
+    cal.__dict__["_direction_fields"] = list(fields)
 
 
 def _figure_fields(
@@ -540,13 +559,16 @@ def direction_terms(
     samples: Any, model: Any, cal: Any, fields: list | None = None
 ) -> list[Perturbation]:
     """Each direction field of :func:`direction_fields` as the samples' ``δy`` (per unit):
-    ``(f(wo + ε δwo) − f(wo)) / ε`` at each sample's dome direction (an arm at azimuth 0),
-    the field interpolated bilinearly between the cells' means (a lookup of the cell's own
-    mean is a piecewise-constant shift: a lobe inside one or two cells was moved, not
-    stretched, and alpha's sensitivity to a direction *scale* came out 40-150 times too
-    small), and ``ε`` such that the step is :data:`DIRECTION_STEP_RAD` (a unit of a field
-    per unit slope or focal scale moves directions by radians, far outside the linear
-    range). ``fields``: :func:`direction_fields` of ``cal`` if computed elsewhere."""
+    ``∇f · δwo`` at each sample's dome direction (an arm at azimuth 0), the field
+    interpolated bilinearly between the cells' means (a lookup of the cell's own mean is a
+    piecewise-constant shift: a lobe inside one or two cells was moved, not stretched, and
+    alpha's sensitivity to a direction *scale* came out 40-150 times too small). ``∇f``,
+    the gradient on the sphere, once for every field: central differences of ``f`` along two
+    tangents at a step of :data:`DIRECTION_STEP_RAD`. (Each field was differenced on its
+    own before, ``(f(wo + ε δwo) − f(wo)) / ε`` with ``ε δwo`` of that RMS step: the same
+    first order, 9.6 ms a field on the default campaign's samples; the dome figure's
+    :data:`FIGURE_REALISATIONS` fields made that the budget's largest part.)
+    ``fields``: :func:`direction_fields` of ``cal`` if computed elsewhere."""
     fields = direction_fields(cal) if fields is None else fields
     if not fields:
         return []
@@ -554,40 +576,51 @@ def direction_terms(
     w_s = samples.wo
     c, s = np.cos(rot), np.sin(rot)
     w_dome = np.stack([c * w_s[:, 0] - s * w_s[:, 1], s * w_s[:, 0] + c * w_s[:, 1], w_s[:, 2]], 1)
-    moved = _interpolated(w_dome, [f[3] for f in fields])
-    # the loop works on the components as contiguous rows: the same sums, norms and
-    # rotations as on (n, 3) arrays (the same bits), without strided column access
-    wd = np.ascontiguousarray(w_dome.T)
+    # f's gradient on the sphere at each sample (central differences along two tangents,
+    # DIRECTION_STEP_RAD), as the coefficients of a dome-frame change's components
     wi = samples.wi
-    f0 = model(wi, w_s)
+    h = DIRECTION_STEP_RAD
+    coef = np.zeros((3, len(w_s)))
+    for e in _tangent(w_s):
+        g = (model(wi, _unit(w_s + h * e)) - model(wi, _unit(w_s - h * e))) / (2.0 * h)
+        # the dome frame's unit changes turned back into the sample frame, along e
+        coef[0] += g * (c * e[:, 0] - s * e[:, 1])
+        coef[1] += g * (s * e[:, 0] + c * e[:, 1])
+        coef[2] += g * e[:, 2]
+    corners, weights = _bilinear(w_dome)
     out = []
-    for j, (name, u, unit, _means, corrected) in enumerate(fields):
-        dx, dy, dz = moved[3 * j : 3 * j + 3]
-        size = float(np.sqrt(np.mean(dx * dx + dy * dy + dz * dz))) if dx.size else 0.0
-        eps = DIRECTION_STEP_RAD / size if size > 0 else 1.0
-        ax, ay, az = wd[0] + eps * dx, wd[1] + eps * dy, wd[2] + eps * dz
-        norm = np.sqrt(ax * ax + ay * ay + az * az)
-        ax, ay, az = ax / norm, ay / norm, az / norm
-        back = np.stack([c * ax + s * ay, -s * ax + c * ay, az], 1)
-        note = "direction change of the calibrated geometry" if corrected else "dome figure"
-        out.append(Perturbation(name, u, unit, (model(wi, back) - f0) / eps,
-                                corrected=corrected, note=note))  # fmt: skip
+    for k in range(0, len(fields), _FIELD_CHUNK):  # a few fields at once: (n, 3 x chunk)
+        part = fields[k : k + _FIELD_CHUNK]
+        moved = _interpolated(w_dome, [f[3] for f in part], (corners, weights))
+        for j, (name, u, unit, _means, corrected) in enumerate(part):
+            dy = coef[0] * moved[:, 3 * j] + coef[1] * moved[:, 3 * j + 1]
+            dy += coef[2] * moved[:, 3 * j + 2]
+            row = name.split("[")[0] if name.startswith("dome_figure[") else None
+            note = ("direction change of the calibrated geometry" if corrected else
+                    "dome figure" if row is None else "dome figure, Monte Carlo of its "
+                    "specification (the realisations' root sum of squares)")  # fmt: skip
+            out.append(Perturbation(name, u, unit, dy, corrected=corrected, note=note, row=row))
     return out
 
 
-def _interpolated(w_dome: NDArray, means: list[NDArray]) -> list[NDArray]:
+#: direction fields interpolated at the samples together (:func:`direction_terms`)
+_FIELD_CHUNK = 8
+
+
+def _interpolated(w_dome: NDArray, means: list[NDArray], bilinear: tuple | None = None
+                  ) -> NDArray:  # fmt: skip
     """Every field's cell means (grid², 3) interpolated bilinearly at the dome directions,
-    as ``3 · fields`` arrays (n,) (x, y, z of each field): one sparse (n, grid²) matrix of
-    the four corner weights per direction times each field component (the same sums as a
-    gather of the corners per field, ten times faster; no (n, 4, 3) temporaries)."""
+    as an ``(n, 3 · fields)`` array (x, y, z of each field): one sparse (n, grid²) matrix of
+    the four corner weights per direction times the fields' components (the same sums as a
+    gather of the corners per field, ten times faster; no (n, 4, 3) temporaries).
+    ``bilinear``: :func:`_bilinear` of ``w_dome`` if made before."""
     from scipy.sparse import csr_matrix
 
-    corners, weights = _bilinear(w_dome)
+    corners, weights = _bilinear(w_dome) if bilinear is None else bilinear
     n = corners.shape[0]
     interp = csr_matrix((weights.ravel(), corners.ravel(), np.arange(0, 4 * n + 1, 4)),
                         shape=(n, GRID * GRID))  # fmt: skip
-    cols = np.concatenate(means, axis=1).T  # one matrix-vector product per component
-    return [interp @ np.ascontiguousarray(col) for col in cols]
+    return np.asarray(interp @ np.concatenate(means, axis=1))
 
 
 #: the direction step (rad, RMS over the samples) at which a field's δy is differenced

@@ -7,9 +7,13 @@ and the next campaign of the same instrument realisation reads it instead.
 
 Where: ``$GONIO_CACHE_DIR/calibrations/KEY/`` (default ``$XDG_CACHE_HOME/gonio``, else
 ``~/.cache/gonio``): the ``calibration.json`` of
-:meth:`gonio.calibration.laboratory.LabCalibration.write`, and ``key.json``, what the key
-was made of. ``gonio campaign --no-calibration-cache`` (``run(...,
-calibration_cache=False)``) neither reads nor writes it.
+:meth:`gonio.calibration.laboratory.LabCalibration.write`, ``key.json``, what the key
+was made of, and ``direction_fields.npz``, the uncertainty budget's direction fields of
+that calibration (:func:`gonio.campaign.budget_terms.direction_fields`: made from the
+calibration and the specification alone, 1-2 s of processor time for the dome figure's
+64 realisations), added by the first campaign that made them (:func:`store_fields`).
+``gonio campaign --no-calibration-cache`` (``run(..., calibration_cache=False)``) neither
+reads nor writes it.
 
 The key (:func:`calibration_key`) is the SHA-256 of everything that determines the
 calibration: the instrument's identity as the calibration records it (its description,
@@ -36,12 +40,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["cache_dir", "calibration_key", "load", "store"]
+__all__ = ["cache_dir", "calibration_key", "load", "store", "store_fields"]
 
 #: the environment variable naming the cache's folder
 ENV = "GONIO_CACHE_DIR"
 #: the file of an entry that holds what its key was made of
 KEY_FILE = "key.json"
+#: the file of an entry that holds its calibration's direction fields
+FIELDS_FILE = "direction_fields.npz"
 
 
 def cache_dir() -> Path:
@@ -117,9 +123,69 @@ def load(key: str, made_of: Mapping[str, Any]) -> Any:
             return None
         from gonio.calibration.laboratory import read_calibration
 
-        return read_calibration(entry)
+        lab = read_calibration(entry)
     except (OSError, ValueError):
         return None
+    fields = _read_fields(entry / FIELDS_FILE)
+    if fields is not None:
+        from gonio.campaign.budget_terms import keep_direction_fields
+
+        keep_direction_fields(lab, fields)
+    return lab
+
+
+def has_fields(lab: Any) -> bool:
+    """Whether ``lab`` came with its direction fields (read from its entry)."""
+    return "_direction_fields" in getattr(lab, "__dict__", {})
+
+
+def store_fields(key: str, made_of: Mapping[str, Any], fields: list) -> bool:
+    """Add the direction fields ``fields`` (:func:`gonio.campaign.budget_terms.direction_fields`
+    of the calibration kept under ``key``) to its entry, written atomically; False when the
+    entry is not that calibration's (another ``key.json``, or none) or cannot be written."""
+    import io
+
+    import numpy as np
+
+    from gonio.io.atomic import atomic_write_bytes
+
+    entry = cache_dir() / key
+    try:
+        if json.loads((entry / KEY_FILE).read_text()) != made_of:
+            return False
+        buf = io.BytesIO()
+        np.savez(
+            buf,
+            name=np.array([f[0] for f in fields], dtype=str),
+            u=np.array([f[1] for f in fields], dtype=np.float64),
+            unit=np.array([f[2] for f in fields], dtype=str),
+            cells=np.stack([f[3] for f in fields]) if fields else np.zeros((0, 0, 3)),
+            corrected=np.array([f[4] for f in fields], dtype=bool),
+        )  # fmt: skip
+        atomic_write_bytes(entry / FIELDS_FILE, buf.getvalue(), durable=False)
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def _read_fields(path: Path) -> list | None:
+    """The direction fields of :func:`store_fields`, or None (no file, or one that cannot
+    be read as such: the fields are then made again)."""
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            name, u, unit, cells, corr = (z[k] for k in ("name", "u", "unit", "cells",
+                                                         "corrected"))  # fmt: skip
+    except (OSError, ValueError, KeyError, EOFError):
+        return None
+    n = len(name)
+    if not (len(u) == len(unit) == len(corr) == cells.shape[0] == n) or (
+        n and (cells.ndim != 3 or cells.shape[2] != 3 or not np.isfinite(cells).all())
+    ):
+        return None
+    return [(str(name[i]), float(u[i]), str(unit[i]), cells[i], bool(corr[i]))
+            for i in range(n)]  # fmt: skip
 
 
 #: entries kept (the oldest beyond it removed when one is stored; each about 0.15 MB)

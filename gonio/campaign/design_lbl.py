@@ -364,7 +364,15 @@ def lbl_candidates(
 
     sysp = [p for p in perts if p.kind == "systematic" and p.name not in _PLAN_TERMS
             and not p.name.startswith(_LAMP_ANCHOR)]  # fmt: skip
-    B = per_capture(np.stack([p.u * p.dy for p in sysp], axis=1)) if sysp else np.zeros((ng, P, 0))
+    # a few terms at a time (the dome figure's realisations are many: no (n, all) array)
+    B = np.concatenate(
+        [
+            per_capture(np.stack([p.u * p.dy for p in sysp[k : k + 16]], axis=1))
+            for k in range(0, len(sysp), 16)
+        ]
+        or [np.zeros((ng, P, 0))],
+        axis=2,
+    )
     rand, rand_exp = [], []
     for p in perts:
         if p.kind != "random":

@@ -233,6 +233,8 @@ def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
         (True, Job("capture", capture, ("ex", "setup"), ("per_angle",))),
         (setup.lab is not None,  # the budget's direction fields: the calibration's alone
          Job("fields", budget_fields, ("lab", "corrections"), ("fields",), kind="side")),
+        (_fields_to_keep(setup),  # and kept with it for its next campaign (calcache)
+         Job("keep_fields", _keep_fields, ("setup", "fields"), kind="write")),
         (bool(plan.restandard_every),  # the lamp's drift from the re-measured standard
          Job("drift", correct_drift, ("per_angle", "corrections"))),
         (True, Job("merge", _merge, ("ex", "setup", "per_angle", "t_start"), ("samples",))),
@@ -345,6 +347,7 @@ def _laboratory(
         })  # fmt: skip
         lab = calcache.load(key, made_of)
         cache["key"] = key[:20]  # (not whether it was found: the summary stays the same)
+        cache["_entry"] = (key, made_of)  # (for its direction fields: _keep_fields)
     if lab is None:
         lab = laboratory_calibration(
             sim, sim.mirror.to_dict(), folder=folder, certificate=certificate,
@@ -841,7 +844,8 @@ def _report(
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info
     if setup.lab is not None and setup.calibration_cache:  # (read from the cache or kept)
-        summary["calibration"] = {**summary["calibration"], "cache": setup.calibration_cache}
+        kept = {k: v for k, v in setup.calibration_cache.items() if not k.startswith("_")}
+        summary["calibration"] = {**summary["calibration"], "cache": kept}
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
         if budget is not None:
@@ -859,6 +863,27 @@ def _report(
             "effects": {k: v for k, v in effects.items() if v != 0.0},
         }
     return summary
+
+
+def _fields_to_keep(setup: _Setup) -> bool:
+    """Whether the campaign's direction fields are to be kept with its calibration in the
+    calibration cache (one kept there, whose entry has none yet)."""
+    from gonio.campaign import calcache
+
+    entry = (setup.calibration_cache or {}).get("_entry")
+    return entry is not None and setup.lab is not None and not calcache.has_fields(setup.lab)
+
+
+def _keep_fields(setup: _Setup, fields: list) -> float:
+    """The direction fields made by this campaign added to its calibration's cache entry
+    (:func:`gonio.campaign.calcache.store_fields`; nothing when they are empty: no
+    ``geometry`` correction); returns the seconds."""
+    from gonio.campaign import calcache
+
+    t = time.perf_counter()
+    if fields:
+        calcache.store_fields(*setup.calibration_cache["_entry"], fields)
+    return time.perf_counter() - t
 
 
 def _budget(

@@ -167,7 +167,7 @@ def test_interpolated_fields_are_the_corner_gather():
     for j, m in enumerate(means):
         want = np.einsum("nk,nkc->nc", weights, m[corners])
         for c in range(3):
-            assert np.array_equal(got[3 * j + c], want[:, c])
+            assert np.array_equal(got[:, 3 * j + c], want[:, c])
 
 
 def test_digitiser_term_is_the_blur_of_its_box():
@@ -192,3 +192,26 @@ def test_digitiser_term_is_the_blur_of_its_box():
     assert t.name == "digitiser" and not t.corrected
     assert t.u == pytest.approx(sigma**2) and np.array_equal(t.dy, ref.dy)
     assert bt.digitiser_term(s, model, lens, [(80, 108), (480, 640)]) == []  # mixed: unknown
+
+
+def test_realisations_of_one_row_are_reported_as_their_root_sum_of_squares():
+    """Perturbations that share a row (a Monte Carlo term's realisations) make one line of
+    the budget, u and contributions their root sum of squares; the combined uncertainty is
+    that of the realisations one by one."""
+    from gonio.campaign.budget import Perturbation, build_budget
+    from gonio.fit import fit
+
+    s = _campaign_like_samples(3000)
+
+    r = fit(s, "ward")
+    rng = np.random.default_rng(3)
+    dys = [rng.normal(size=len(s)) * s.value * 1e-3 for _ in range(3)]
+    apart = [Perturbation(f"fig[{k}]", 0.5, "rad", dy) for k, dy in enumerate(dys)]
+    rows = [Perturbation(f"fig[{k}]", 0.5, "rad", dy, row="fig") for k, dy in enumerate(dys)]
+    a, b = build_budget(r, s, apart), build_budget(r, s, rows)
+    assert [t.name for t in b.terms] == ["fig"]
+    assert b.terms[0].u == pytest.approx(0.5 * np.sqrt(3))
+    for n in a.combined:
+        assert b.combined[n] == a.combined[n]
+        rss = np.sqrt(sum(t.contribution[n] ** 2 for t in a.terms))
+        assert b.terms[0].contribution[n] == pytest.approx(rss, rel=1e-12)

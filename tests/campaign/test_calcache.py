@@ -104,3 +104,39 @@ def test_the_oldest_entries_beyond_the_limit_are_removed(cache, monkeypatch):
         os.utime(cache / key, (1000.0 + k, 1000.0 + k))  # stored one after the other
         keys.append(key)
     assert sorted(p.name for p in cache.iterdir()) == sorted(keys[2:])
+
+
+def test_the_budgets_direction_fields_are_kept_with_the_calibration(cache, tmp_path, monkeypatch):
+    """The first campaign of an instrument adds its budget's direction fields to the
+    calibration's entry; the next reads them instead of tracing the dome figures again,
+    with the same budget to the bit. A damaged or foreign fields file is not served."""
+    from gonio.campaign import budget_terms
+
+    first = campaign.run(campaign.Plan(**SMALL, seed=4), tmp_path / "a", workers=1)
+    (entry,) = cache.iterdir()
+    assert (entry / calcache.FIELDS_FILE).is_file()
+    key, made_of = entry.name, json.loads((entry / calcache.KEY_FILE).read_text())
+    lab = calcache.load(key, made_of)
+    assert calcache.has_fields(lab)
+    fields = budget_terms.direction_fields(lab)
+    n_fig = sum(f[0].startswith("dome_figure[") for f in fields)
+    assert n_fig == budget_terms.FIGURE_REALISATIONS
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("figures traced anew")
+
+    monkeypatch.setattr(budget_terms, "_figure_fields", refuse)
+    second = campaign.run(campaign.Plan(**SMALL, seed=4), tmp_path / "b", workers=1)
+    assert second.summary["budget"] == first.summary["budget"]
+    # one row for the dome figure's realisations: their root sum of squares
+    assert "dome_figure" in first.summary["budget"]["terms"]
+    assert not any(t.startswith("dome_figure[") for t in first.summary["budget"]["terms"])
+    # a fields file that is not one (damaged, or of other shapes): read as none
+    (entry / calcache.FIELDS_FILE).write_bytes(b"not an npz")
+    assert not calcache.has_fields(calcache.load(key, made_of))
+    assert not calcache.store_fields(key, {**made_of, "seed": "other"}, fields)
+    assert calcache.store_fields(key, made_of, fields)
+    again = calcache.load(key, made_of)
+    for a, b in zip(budget_terms.direction_fields(again), fields, strict=True):
+        assert a[0] == b[0] and a[1] == b[1] and a[2] == b[2] and a[4] == b[4]
+        np.testing.assert_array_equal(a[3], b[3])
