@@ -62,8 +62,9 @@ def test_the_design_at_a_higher_level(stacked, tmp_path):
     """The same targets (twice the default plan's U) designed at 0.95 and 0.99: the default
     plan's central prediction is the same, its bound higher at 0.99; each design meets every
     target at its own level, none unreachable; the 0.95 plan's bound at 0.99 misses a
-    target, so the 0.99 design takes a longer plan. Each records its level, and its plan
-    file and table say it."""
+    target, so the 0.99 design takes another plan, no quicker (a plan whose bound at 0.99
+    meets a target meets it at 0.95; here one capture at another angle, as long). Each
+    records its level, and its plan file and table say it."""
     lo = design_lbl.design_lbl("rolled_brass", default_factor=2.0, candidates=stacked)
     tg = {p: (t, False) for p, t in lo.targets.items()}
     hi = design_lbl.design_lbl("rolled_brass", tg, candidates=stacked, assurance=0.99)
@@ -80,7 +81,8 @@ def test_the_design_at_a_higher_level(stacked, tmp_path):
     rm = np.isin(st.c.rotations, lo.rotations_deg)
     _, lo_at_99 = design_lbl._U95_of(st, am, rm, np.zeros(st.P), lo.restandard_every)
     assert any(u > lo.targets[p] for p, u in zip(st.c.names, lo_at_99))
-    assert hi.hours > lo.hours
+    assert (hi.theta_i_deg, hi.rotations_deg) != (lo.theta_i_deg, lo.rotations_deg)
+    assert hi.hours >= lo.hours
     path = tmp_path / "plan.json"
     design_lbl.write_lbl_plan(path, hi)
     assert json.loads(path.read_text())["assurance"] == 0.99
