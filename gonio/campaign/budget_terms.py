@@ -596,6 +596,8 @@ def direction_terms(
             dy = coef[0] * moved[:, 3 * j] + coef[1] * moved[:, 3 * j + 1]
             dy += coef[2] * moved[:, 3 * j + 2]
             row = name.split("[")[0] if name.startswith("dome_figure[") else None
+            if row is not None:  # (many realisations, kept for the design: single precision)
+                dy = dy.astype(np.float32)
             note = ("direction change of the calibrated geometry" if corrected else
                     "dome figure" if row is None else "dome figure, Monte Carlo of its "
                     "specification (the realisations' root sum of squares)")  # fmt: skip
@@ -604,7 +606,7 @@ def direction_terms(
 
 
 #: direction fields interpolated at the samples together (:func:`direction_terms`)
-_FIELD_CHUNK = 8
+_FIELD_CHUNK = 4
 
 
 def _interpolated(w_dome: NDArray, means: list[NDArray], bilinear: tuple | None = None
