@@ -96,7 +96,9 @@ print(tight.unreachable)
 # design's ``assurance``, ``gonio design --assurance P``), and the targets are met by it;
 # ``designed U`` is their mean. ``gonio design --instrument
 # lbl --default-u 1`` takes the default plan's 21 angles as the candidates on six design
-# instruments (``--design-instruments K`` for another number; about 20-25 s on two cores).
+# instruments (``--design-instruments K`` for another number; measured on two idle cores
+# with their calibrations kept: about 11 s with six, 19 s with ten; the first design on an
+# instrument also makes its calibration, about 2 s of processor time each).
 # To keep this page quick the candidates here are every 10° from 0° to 80° (the default
 # rotations) on two design instruments, and the targets 1.25 times the mean U of all those
 # candidates together (the "default" column). A target no plan meets at 95 % is reported

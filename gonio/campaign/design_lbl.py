@@ -67,7 +67,8 @@ plan whose bound is lowest among many, favours plans whose few instruments happe
 the default is six. A bound at P misses about 1 - P of the instruments by construction, so
 "every target met on every instrument" cannot hold at 0.95 on 20 instruments; but a higher
 P does not buy it either, because the floors that decide which targets are unreachable are
-bounds at the same P (measured, rolled brass, modern, six design instruments, instruments
+bounds at the same P (measured with the 4-realisation dome term, before ad1a639: rolled
+brass, modern, six design instruments, instruments
 0-19, ``bench_design.py --lbl --validate 20 --factor F --assurance P``, load average 1-3):
 
 =====  ======  ===========  ========  ==================  =========  ===========  ===========
@@ -177,10 +178,38 @@ The prior is the material preset, or a model (``truth``: the adaptive campaign's
 one per design instrument); a prior range as on Cornell would need one candidate campaign per
 point.
 
-Measured (rolled brass, modern preset, instruments 0-19, ``benchmarks/bench_design.py --lbl
---validate 20 --factor F --instruments K``, campaign seed = instrument seed; shared machine,
-load average 2-2.6), with the plans' hours from their brackets; "own" is the hours of each
-validation campaign's own brackets:
+Measured with the budget's dome figure from 64 realisations (ad1a639; 4 before, which gave
+its RMS 36 % low on small plans: :data:`gonio.campaign.budget_terms.FIGURE_REALISATIONS`),
+rolled brass, modern preset, targets 1.25 times the default plan's predicted U, instruments
+0-59 (``benchmarks/bench_design.py --lbl --validate 60 --factor 1.25 --instruments K``,
+campaign seed = instrument seed):
+
+========================  =========  ==========  =========  ===========  ===========
+design instruments K      plan       hours       truth in   achieved /   reachable
+                                     (default    U          predicted    targets met
+                                     0.064)                 within 25 %
+========================  =========  ==========  =========  ===========  ===========
+6 (the default)           9 x 2      0.0332      232/240    238/240      174/180
+10                        6 x 1      0.0188      236/240    223/240      179/180
+========================  =========  ==========  =========  ===========  ===========
+
+ρd unreachable in both (its floor at 95 %, 0.00143 and 0.00125, above the target). The
+same validations with the 4-realisation term: K = 6, 7 x 2, 0.0292 h, truth within U
+225/240, 235/240, 174/180; K = 10, 3 x 2, 0.0196 h, 226/240, 232/240, 179/180 (the plans
+now larger or at one rotation, their U honest: the truth within U rose from 94 % to 97-98 %).
+At K = 10 the single rotation leaves α_x's U spread over instruments (0.62-1.31 times the
+prediction; its sample-tilt term 2.0e-5 to 6.7e-5 on instruments 3 and 1), so the
+central prediction is less often within 25 %. Design time, whole process, warm calibration
+cache (the idle 2-core machine, ``gonio design --instrument lbl --default-u 1.25``): K = 6
+10.7 s (10.6-11.7, three runs; 1.05 times the 4-realisation term's in A/B pairs), K = 10
+18.5-18.7 s (20.4 s with four of its instruments not yet calibrated); the first design of
+an instrument also makes its calibration and the budget's direction fields (about 2 s of
+processor time each).
+
+Measured before that, with the 4-realisation dome term (rolled brass, modern preset,
+instruments 0-19, ``benchmarks/bench_design.py --lbl --validate 20 --factor F --instruments
+K``, campaign seed = instrument seed; shared machine, load average 2-2.6), with the plans'
+hours from their brackets; "own" is the hours of each validation campaign's own brackets:
 
 * targets 1.25 x the default plan's predicted U, six design instruments: 7 angles x 2
   rotations, 0.0292 h (own 0.0286-0.0292 h, median 0.0291; 0.0325 h at three frames a

@@ -92,8 +92,8 @@ def _plan_options(group) -> None:
         default=None,
         metavar="K",
         help="--adaptive, lbl: the design's instruments (1-10, default 6), as gonio design "
-        "takes them (ten met every reachable target on 20 instruments where six missed 3 of "
-        "60, at twice the design time)",
+        "takes them (on 60 instruments ten met 179/180 reachable targets where six met "
+        "174/180, with a quicker plan, in 1.7 times the design time)",
     )
     group.add_argument(
         "--through-drivers",

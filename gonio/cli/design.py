@@ -41,7 +41,10 @@ def add_arguments(parser) -> None:
         metavar="K",
         help="lbl: instruments of the preset the candidate campaign runs on (1-10, default 6; "
         "each about 4 s): the design meets each target at the U at --assurance over the "
-        "preset's instruments, bounded from them",
+        "preset's instruments, bounded from them. Measured on rolled brass (modern, targets "
+        "1.25 x the default U, 60 instruments): six chose 9 x 2 angles x rotations (0.52 of "
+        "the default's hours) and met 174/180 reachable targets, ten 6 x 1 (0.29) and "
+        "179/180, in 1.7 times the design time",
     )
     parser.add_argument(
         "--assurance",
@@ -52,8 +55,9 @@ def add_arguments(parser) -> None:
         "(0.5 < P < 1; default 0.95): the design bounds each U at P over instruments, from "
         "the design instruments. A target whose floor at P is above it is not chased, so a "
         "higher P can chase fewer: measured on rolled brass (modern, 20 instruments, targets "
-        "1.25 x the default U), 0.95 met 57/60 reachable targets with 7 x 2 angles x "
-        "rotations, 0.975 and 0.99 gave up rho_s for a 1 x 1 plan",
+        "1.25 x the default U, the budget's earlier 4-realisation dome term), 0.95 met 57/60 "
+        "reachable targets with 7 x 2 angles x rotations, 0.975 and 0.99 gave up rho_s for a "
+        "1 x 1 plan",
     )
     parser.add_argument(
         "--brackets",
