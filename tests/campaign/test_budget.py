@@ -154,20 +154,32 @@ def test_budget_view_shares_the_columns_and_computes_directions_once():
     assert v.wi is v.wi and not v.wo.flags.writeable
 
 
-def test_interpolated_fields_are_the_corner_gather():
-    """The sparse interpolation of every field at once equals each field's four corners
-    gathered and weighted (bit for bit: the same four products summed in order)."""
-    from gonio.campaign.budget_terms import GRID, _bilinear, _interpolated
+def test_direction_terms_are_each_fields_corners_times_the_gradient():
+    """Each field's δy, from one sparse matrix of every sample's corner weights times its
+    gradient's coefficients, equals the independent slow form: the field's four corners
+    gathered and weighted at the sample's dome direction, turned back into the sample frame,
+    and f differenced along that change (central, a 1e-5 rad step): to 1e-4 of the largest."""
+    from types import SimpleNamespace
+
+    from gonio import brdf
+    from gonio.campaign.budget_terms import GRID, _bilinear, _unit, direction_terms
 
     rng = np.random.default_rng(1)
     s = _campaign_like_samples(5000)
-    means = [rng.normal(size=(GRID * GRID, 3)) for _ in range(3)]
-    got = _interpolated(s.wo, means)
-    corners, weights = _bilinear(s.wo)
-    for j, m in enumerate(means):
-        want = np.einsum("nk,nkc->nc", weights, m[corners])
-        for c in range(3):
-            assert np.array_equal(got[:, 3 * j + c], want[:, c])
+    model = brdf.create("ward", rho_d=0.1, rho_s=0.3, alpha_x=0.2, alpha_y=0.3)
+    fields = [(f"f[{k}]", 1.0, "rad", rng.normal(size=(GRID * GRID, 3)), k == 0)
+              for k in range(3)]  # fmt: skip
+    terms = direction_terms(s, model, SimpleNamespace(_direction_fields=fields))
+    c, si = np.cos(-s.phi_i), np.sin(-s.phi_i)
+    w = s.wo
+    wd = np.stack([c * w[:, 0] - si * w[:, 1], si * w[:, 0] + c * w[:, 1], w[:, 2]], 1)
+    corners, weights = _bilinear(wd)
+    h = 1e-5
+    for t, (_, _, _, cells, _) in zip(terms, fields, strict=True):
+        d = np.einsum("nk,nkc->nc", weights, cells[corners])  # the field at each sample
+        d_s = np.stack([c * d[:, 0] + si * d[:, 1], -si * d[:, 0] + c * d[:, 1], d[:, 2]], 1)
+        want = (model(s.wi, _unit(w + h * d_s)) - model(s.wi, _unit(w - h * d_s))) / (2 * h)
+        np.testing.assert_allclose(t.dy, want, rtol=0, atol=1e-4 * np.abs(want).max())
 
 
 def test_digitiser_term_is_the_blur_of_its_box():
