@@ -20,12 +20,14 @@ __all__ = [
     "FISHEYE_FOCAL_LENGTH_M",
     "LAMP_WARMUP_TAU_S",
     "beam_shadowed",
+    "dome_frame",
     "dome_rays",
     "fstop_area_factor",
     "lamp_factor",
     "psf_sigma_px",
     "slope_field",
     "tilt_rotation",
+    "tilted_rays",
     "to_plane",
     "trace_perturbed",
     "true_f_number",
@@ -78,19 +80,39 @@ def dome_rays(mirror, dirs: NDArray, slope=None) -> tuple[NDArray, NDArray, NDAr
     turns by twice the tilt. Returns ``(u, p, refl)``: unit camera rays, mirror points and
     reflected directions.
     """
+    if slope is not None:
+        return tilted_rays(dome_frame(mirror, dirs), slope)
     u = np.asarray(dirs, dtype=np.float64)
     u = u / np.linalg.norm(u, axis=-1, keepdims=True)
     p, _ = mirror.intersect(u)
     n = mirror.normal(p)
-    if slope is not None:
-        se, sn = slope(p)
-        up = np.array([0.0, 0.0, 1.0])
-        east = np.cross(up, n)
-        en = np.linalg.norm(east, axis=-1, keepdims=True)
-        east = np.where(en > 1e-12, east / np.maximum(en, 1e-300), np.array([1.0, 0.0, 0.0]))
-        north = np.cross(n, east)
-        n = n + se[:, None] * east + sn[:, None] * north
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    refl = u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
+    return u, p, refl
+
+
+def dome_frame(mirror, dirs: NDArray) -> tuple[NDArray, ...]:
+    """What :func:`dome_rays` computes before a figure tilts the normal: the unit camera
+    rays, their mirror points, the normals there and the local east and north tangents
+    ``(u, p, n, east, north)``; many figures on the same rays (:func:`tilted_rays`) share it."""
+    u = np.asarray(dirs, dtype=np.float64)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    p, _ = mirror.intersect(u)
+    n = mirror.normal(p)
+    up = np.array([0.0, 0.0, 1.0])
+    east = np.cross(up, n)
+    en = np.linalg.norm(east, axis=-1, keepdims=True)
+    east = np.where(en > 1e-12, east / np.maximum(en, 1e-300), np.array([1.0, 0.0, 0.0]))
+    north = np.cross(n, east)
+    return u, p, n, east, north
+
+
+def tilted_rays(frame: tuple[NDArray, ...], slope) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`dome_rays` of the rays of ``frame`` (:func:`dome_frame`) with the normal tilted
+    by ``slope(points)``: ``(u, p, refl)``, the same values."""
+    u, p, n, east, north = frame
+    se, sn = slope(p)
+    n = n + se[:, None] * east + sn[:, None] * north
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
     refl = u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
     return u, p, refl
 

@@ -371,7 +371,7 @@ GRID = 48
 #: 5.83, 5.85, 7.13, 8.28 and 8.30 x 1e-5 (rho_s 5.89, 6.62, 6.56, 7.85, 9.17 and 9.31 x
 #: 1e-4). 64 are 14 % below 256 there (4 were 36 % below): each realisation's samples'
 #: change is kept for the budget and the design (1.4 MB each on the default campaign), so
-#: more would cost memory as well as time (about 16 ms of processor time each in
+#: more would cost memory as well as time (about 11 ms of processor time each in
 #: :func:`direction_fields`, kept with the calibration by :mod:`gonio.campaign.calcache`,
 #: and 4 ms each in :func:`direction_terms`).
 FIGURE_REALISATIONS = 64
@@ -481,17 +481,19 @@ def _figure_fields(
     k_n = FIGURE_REALISATIONS
     h = FIGURE_STEP_RAD  # a small figure, so that the direction change is linear in it
     tr0 = le.trace_perturbed(mirror, cam[keep], None, 0.0)
+    frame = le.dome_frame(mirror, cam[keep])  # the rays' dome points, shared by the figures
+    spot_rays = None if spots is None else _spot_rays(lens, spots, mirror)
     for k in range(k_n):
         seed = 2**40 + k  # a realisation of the dome-figure model, not this instrument's
 
         def sl(p, seed=seed):
             return le.slope_field(p, h, r, seed)
 
-        tr = le.trace_perturbed(mirror, cam[keep], sl, 0.0)
+        tr = le.to_plane(*le.tilted_rays(frame, sl), 0.0)
         ok = tr["valid"] & tr0["valid"]
         wo_red = wo0[keep]
         if spots is not None:
-            g1 = _refit_geometry(mc, lens, spots, mirror, sl)
+            g1 = _refit_geometry(mc, lens, spots, mirror, sl, spot_rays)
             if g1 is not None:
                 from gonio.calibration.angles import reflection_directions
 
@@ -537,16 +539,27 @@ def _direction_jacobian(lens: Any, mc: Any, u: NDArray) -> tuple[NDArray, NDArra
     return w[0], np.stack([w[1] - w[2], w[3] - w[4]], axis=1)
 
 
-def _refit_geometry(mc: Any, lens: Any, spots: tuple, mirror: Any, slope: Any) -> Any:
+def _spot_rays(lens: Any, spots: tuple, mirror: Any) -> tuple:
+    """The spots' camera rays through the dome without a figure: their directions and their
+    :func:`~gonio.simulator.lbl_effects.dome_frame` (the same for every figure)."""
+    from gonio.simulator import lbl_effects as le
+
+    cam = lens.unproject(spots[0])
+    return le.trace_perturbed(mirror, cam, None, 0.0)["wo"], le.dome_frame(mirror, cam)
+
+
+def _refit_geometry(
+    mc: Any, lens: Any, spots: tuple, mirror: Any, slope: Any, rays: tuple | None = None
+) -> Any:
     """The mirror fit to the spots as a dome of figure ``slope`` moves them (first order:
-    each spot's pixel shifted by ``−J⁺ δwo``), or None if the fit fails."""
+    each spot's pixel shifted by ``−J⁺ δwo``), or None if the fit fails. ``rays``:
+    :func:`_spot_rays` if made before."""
     from gonio.calibration.mirror import fit_mirror
     from gonio.simulator import lbl_effects as le
 
     uv, dirs, jac = spots
-    cam = lens.unproject(uv)
-    w0 = le.trace_perturbed(mirror, cam, None, 0.0)["wo"]
-    w1 = le.trace_perturbed(mirror, cam, slope, 0.0)["wo"]
+    w0, frame = _spot_rays(lens, spots, mirror) if rays is None else rays
+    w1 = le.to_plane(*le.tilted_rays(frame, slope), 0.0)["wo"]
     moved = np.array([u - np.linalg.lstsq(j, dw, rcond=None)[0]
                       for u, j, dw in zip(uv, jac, w1 - w0)])  # fmt: skip
     try:
