@@ -367,13 +367,14 @@ GRID = 48
 #: them, not a scatter between them; reported as one row, ``dome_figure``). The figure's
 #: effect is heavy-tailed (a few realisations whose waves meet the lobe dominate its
 #: RMS), so the RMS converges slowly: rolled brass, modern, instrument 54, 3 angles x 2
-#: rotations, the alpha_x RMS of the first 4, 16, 32, 64, 128 and 256 realisations 5.28,
-#: 5.83, 5.85, 7.13, 8.28 and 8.30 x 1e-5 (rho_s 5.89, 6.62, 6.56, 7.85, 9.17 and 9.31 x
-#: 1e-4). 64 are 14 % below 256 there (4 were 36 % below): each realisation's samples'
-#: change is kept for the budget and the design (1.4 MB each on the default campaign), so
-#: more would cost memory as well as time (about 11 ms of processor time each in
-#: :func:`direction_fields`, kept with the calibration by :mod:`gonio.campaign.calcache`,
-#: and 4 ms each in :func:`direction_terms`).
+#: rotations (``benchmarks/bench_dome_figure.py``), the alpha_x RMS of the first 4, 16,
+#: 32, 64, 128 and 256 realisations 5.21, 5.76, 5.74, 6.99, 8.13 and 8.18 x 1e-5 (rho_s
+#: 5.87, 6.53, 6.45, 7.70, 9.00 and 9.15 x 1e-4): 64 are 15 % below 256 there, 4 were 36 %
+#: below. Each realisation's samples' change is kept for the budget and the design (0.7
+#: MB each on the default campaign, single precision), so more would cost memory as well
+#: as time (about 11 ms of processor time each in :func:`direction_fields`, kept with the
+#: calibration by :mod:`gonio.campaign.calcache`, and 3.5 ms each in
+#: :func:`direction_terms`).
 FIGURE_REALISATIONS = 64
 #: every how many pixels of the image circle the direction fields use
 FIELD_STRIDE = 4
