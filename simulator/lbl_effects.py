@@ -22,6 +22,7 @@ __all__ = [
     "beam_shadowed",
     "dome_frame",
     "dome_rays",
+    "frame_rays",
     "fstop_area_factor",
     "lamp_factor",
     "psf_sigma_px",
@@ -82,22 +83,28 @@ def dome_rays(mirror, dirs: NDArray, slope=None) -> tuple[NDArray, NDArray, NDAr
     """
     if slope is not None:
         return tilted_rays(dome_frame(mirror, dirs), slope)
+    u, p, n = _dome_points(mirror, dirs)
+    return u, p, _reflect(u, n)
+
+
+def _dome_points(mirror, dirs: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Unit camera rays, their points on the dome and the dome's normals there."""
     u = np.asarray(dirs, dtype=np.float64)
     u = u / np.linalg.norm(u, axis=-1, keepdims=True)
     p, _ = mirror.intersect(u)
-    n = mirror.normal(p)
-    refl = u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
-    return u, p, refl
+    return u, p, mirror.normal(p)
+
+
+def _reflect(u: NDArray, n: NDArray) -> NDArray:
+    return u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
 
 
 def dome_frame(mirror, dirs: NDArray) -> tuple[NDArray, ...]:
     """What :func:`dome_rays` computes before a figure tilts the normal: the unit camera
     rays, their mirror points, the normals there and the local east and north tangents
-    ``(u, p, n, east, north)``; many figures on the same rays (:func:`tilted_rays`) share it."""
-    u = np.asarray(dirs, dtype=np.float64)
-    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
-    p, _ = mirror.intersect(u)
-    n = mirror.normal(p)
+    ``(u, p, n, east, north)``; many figures on the same rays (:func:`tilted_rays`) share it,
+    and :func:`frame_rays` gives its rays without a figure."""
+    u, p, n = _dome_points(mirror, dirs)
     up = np.array([0.0, 0.0, 1.0])
     east = np.cross(up, n)
     en = np.linalg.norm(east, axis=-1, keepdims=True)
@@ -113,8 +120,14 @@ def tilted_rays(frame: tuple[NDArray, ...], slope) -> tuple[NDArray, NDArray, ND
     se, sn = slope(p)
     n = n + se[:, None] * east + sn[:, None] * north
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    refl = u - 2.0 * np.sum(u * n, axis=-1, keepdims=True) * n
-    return u, p, refl
+    return u, p, _reflect(u, n)
+
+
+def frame_rays(frame: tuple[NDArray, ...]) -> tuple[NDArray, NDArray, NDArray]:
+    """:func:`dome_rays` of the rays of ``frame`` (:func:`dome_frame`) without a figure:
+    ``(u, p, refl)``, the same values."""
+    u, p, n = frame[:3]
+    return u, p, _reflect(u, n)
 
 
 def to_plane(u: NDArray, p: NDArray, refl: NDArray, plane_z: float = 0.0) -> dict:

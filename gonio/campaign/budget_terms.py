@@ -78,6 +78,7 @@ __all__ = [
     "direction_terms",
     "exposure_terms",
     "glare_term",
+    "has_direction_fields",
     "keep_direction_fields",
     "lamp_terms",
     "mean_over_pixels",
@@ -376,6 +377,8 @@ GRID = 48
 #: calibration by :mod:`gonio.campaign.calcache`, and 3.5 ms each in
 #: :func:`direction_terms`).
 FIGURE_REALISATIONS = 64
+#: the budget's row of the dome figure's realisations (``dome_figure[k]`` each)
+FIGURE_ROW = "dome_figure"
 #: every how many pixels of the image circle the direction fields use
 FIELD_STRIDE = 4
 #: of those, every how many a ray is traced through a random dome figure (4: the same
@@ -463,6 +466,12 @@ def keep_direction_fields(cal: Any, fields: list) -> None:
     cal.__dict__["_direction_fields"] = list(fields)
 
 
+def has_direction_fields(cal: Any) -> bool:
+    """Whether ``cal`` holds its direction fields (made or kept): :func:`direction_fields`
+    returns them without tracing."""
+    return "_direction_fields" in getattr(cal, "__dict__", {})
+
+
 def _figure_fields(
     mc: Any, cam: NDArray, wo0: NDArray, ok0: NDArray, slope: float, lens: Any, uv: NDArray
 ) -> list:
@@ -481,8 +490,8 @@ def _figure_fields(
     out = []
     k_n = FIGURE_REALISATIONS
     h = FIGURE_STEP_RAD  # a small figure, so that the direction change is linear in it
-    tr0 = le.trace_perturbed(mirror, cam[keep], None, 0.0)
     frame = le.dome_frame(mirror, cam[keep])  # the rays' dome points, shared by the figures
+    tr0 = le.to_plane(*le.frame_rays(frame), 0.0)
     spot_rays = None if spots is None else _spot_rays(lens, spots, mirror)
     for k in range(k_n):
         seed = 2**40 + k  # a realisation of the dome-figure model, not this instrument's
@@ -502,7 +511,7 @@ def _figure_fields(
                 ok = ok & ok1
         # per unit slope: the true direction's change minus the reduction's
         err = ((tr["wo"] - tr0["wo"]) - (wo_red - wo0[keep])) / h
-        out.append((f"dome_figure[{k}]", slope / math.sqrt(k_n), "rad",
+        out.append((f"{FIGURE_ROW}[{k}]", slope / math.sqrt(k_n), "rad",
                     _cell_means(wo0[keep][ok], wo0[keep][ok] + err[ok]), False))  # fmt: skip
     return out
 
@@ -545,8 +554,8 @@ def _spot_rays(lens: Any, spots: tuple, mirror: Any) -> tuple:
     :func:`~gonio.simulator.lbl_effects.dome_frame` (the same for every figure)."""
     from gonio.simulator import lbl_effects as le
 
-    cam = lens.unproject(spots[0])
-    return le.trace_perturbed(mirror, cam, None, 0.0)["wo"], le.dome_frame(mirror, cam)
+    frame = le.dome_frame(mirror, lens.unproject(spots[0]))
+    return le.to_plane(*le.frame_rays(frame), 0.0)["wo"], frame
 
 
 def _refit_geometry(
@@ -613,13 +622,15 @@ def direction_terms(
     grad = csr_matrix((vals.ravel(), cols.ravel(), np.arange(0, 12 * n + 1, 12)),
                       shape=(n, 3 * GRID * GRID))  # fmt: skip
     out = []
+    figure = f"{FIGURE_ROW}["
     for k in range(0, len(fields), _FIELD_CHUNK):  # a few fields at once: (chunk, n)
         part = fields[k : k + _FIELD_CHUNK]
         cells = np.stack([f[3].ravel() for f in part])  # (chunk, 3 grid²)
         rows = np.ascontiguousarray((grad @ cells.T).T)  # each field's δy a row
-        single = rows.astype(np.float32)  # the dome figure's realisations: many, kept for
-        for j, (name, u, unit, _means, corrected) in enumerate(part):  # the design
-            row = name.split("[")[0] if name.startswith("dome_figure[") else None
+        if any(f[0].startswith(figure) for f in part):  # the dome figure's realisations:
+            single = rows.astype(np.float32)  # many, kept for the design
+        for j, (name, u, unit, _means, corrected) in enumerate(part):
+            row = FIGURE_ROW if name.startswith(figure) else None
             dy = rows[j] if row is None else single[j]
             note = ("direction change of the calibrated geometry" if corrected else
                     "dome figure" if row is None else "dome figure, Monte Carlo of its "

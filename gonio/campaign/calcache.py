@@ -119,7 +119,7 @@ def load(key: str, made_of: Mapping[str, Any]) -> Any:
     (none, another's ``key.json``, or a file that cannot be read)."""
     entry = cache_dir() / key
     try:
-        if json.loads((entry / KEY_FILE).read_text()) != made_of:
+        if not _is_entry_of(entry, made_of):
             return None
         from gonio.calibration.laboratory import read_calibration
 
@@ -134,9 +134,17 @@ def load(key: str, made_of: Mapping[str, Any]) -> Any:
     return lab
 
 
+def _is_entry_of(entry: Path, made_of: Mapping[str, Any]) -> bool:
+    """Whether the entry's ``key.json`` holds exactly ``made_of`` (raises OSError or
+    ValueError when it cannot be read)."""
+    return json.loads((entry / KEY_FILE).read_text()) == made_of
+
+
 def has_fields(lab: Any) -> bool:
     """Whether ``lab`` came with its direction fields (read from its entry)."""
-    return "_direction_fields" in getattr(lab, "__dict__", {})
+    from gonio.campaign.budget_terms import has_direction_fields
+
+    return has_direction_fields(lab)
 
 
 def store_fields(key: str, made_of: Mapping[str, Any], fields: list) -> bool:
@@ -151,7 +159,7 @@ def store_fields(key: str, made_of: Mapping[str, Any], fields: list) -> bool:
 
     entry = cache_dir() / key
     try:
-        if json.loads((entry / KEY_FILE).read_text()) != made_of:
+        if not _is_entry_of(entry, made_of):
             return False
         buf = io.BytesIO()
         np.savez(

@@ -231,7 +231,7 @@ def _jobs(setup: _Setup, resume: bool, quiet: bool, stream: Any) -> list[Job]:
     jobs = [
         # 2. capture and reduce
         (True, Job("capture", capture, ("ex", "setup"), ("per_angle",))),
-        (setup.lab is not None,  # the budget's direction fields: the calibration's alone
+        (_fields_to_make(setup),  # the budget's direction fields: the calibration's alone
          Job("fields", budget_fields, ("lab", "corrections"), ("fields",), kind="side")),
         (_fields_to_keep(setup),  # and kept with it for its next campaign (calcache)
          Job("keep_fields", _keep_fields, ("setup", "fields"), kind="write")),
@@ -844,8 +844,8 @@ def _report(
         add_budget(summary, budget)
     summary["calibration"] = None if setup.lab is None else setup.lab.info
     if setup.lab is not None and setup.calibration_cache:  # (read from the cache or kept)
-        kept = {k: v for k, v in setup.calibration_cache.items() if not k.startswith("_")}
-        summary["calibration"] = {**summary["calibration"], "cache": kept}
+        summary["calibration"] = {**summary["calibration"],
+                                  "cache": {"key": setup.calibration_cache["key"]}}  # fmt: skip
     if setup.out is not None and plan.plots:
         summary["files"]["plots"] = [f"plots/{n}.png" for n in PLOTS]
         if budget is not None:
@@ -865,13 +865,20 @@ def _report(
     return summary
 
 
+def _fields_to_make(setup: _Setup) -> bool:
+    """Whether the budget's direction fields are made on a worker: a calibration that does
+    not hold them yet (one read from the calibration cache may; the budget then takes
+    them from it, ``fields`` None)."""
+    from gonio.campaign.budget_terms import has_direction_fields
+
+    return setup.lab is not None and not has_direction_fields(setup.lab)
+
+
 def _fields_to_keep(setup: _Setup) -> bool:
     """Whether the campaign's direction fields are to be kept with its calibration in the
     calibration cache (one kept there, whose entry has none yet)."""
-    from gonio.campaign import calcache
-
     entry = (setup.calibration_cache or {}).get("_entry")
-    return entry is not None and setup.lab is not None and not calcache.has_fields(setup.lab)
+    return entry is not None and _fields_to_make(setup)
 
 
 def _keep_fields(setup: _Setup, fields: list) -> float:
