@@ -252,7 +252,9 @@ def _incidence_plane(samples, model, path, n_angles, tol, max_points, title, ban
         ax.set_xticks(np.arange(-60, 61, 30))
         ax.set_xlabel("θo in the plane of incidence (°)")
         head = f"φi = {np.degrees(phi):.0f}°" if phi is not None else f"λ = {wl:.0f} nm"
-        ax.set_title(head if n > 1 or not title else f"{title}, {head}")
+        # y given: the title stays above the axes (its place with the x ticks at the bottom)
+        # without the draw-time extent of every log tick label (0.17 s of a 0.4 s figure)
+        ax.set_title(head if n > 1 or not title else f"{title}, {head}", y=1.0)
         ax.grid(True, which="major", alpha=0.25, lw=0.5)
         if ok_y.size:
             y_lo, y_hi = min(y_lo, *ok_y), max(y_hi, *ok_y)
@@ -593,8 +595,8 @@ def _residuals(samples, model, path, max_points, title, dpi):
     fig.colorbar(sc, cax=cax, label="θi (°)")
     n_out = int((np.abs(r) > lim).sum())
     shown = f"{len(idx):,} of {n:,} points shown" if len(idx) < n else f"all {n:,} points"
-    ax.set_title(shown + (f"; ▲▼ {int((~inside).sum())} beyond the axis" if (~inside).any()
-                          else ""))  # fmt: skip
+    beyond = f"; ▲▼ {int((~inside).sum())} beyond the axis" if (~inside).any() else ""
+    ax.set_title(shown + beyond, y=1.0)  # (y given: as in _incidence_plane)
     edges = np.linspace(-lim, lim, 61)
     counts, _ = np.histogram(np.clip(r, -lim, lim), bins=edges)
     widths = np.diff(edges)
@@ -615,7 +617,7 @@ def _residuals(samples, model, path, max_points, title, dpi):
     ax2.set_ylim(0, 1.45 * peak if peak > 0 else 1.0)  # headroom for the legend
     ax2.set_xlabel(label)
     ax2.set_ylabel("samples")
-    ax2.set_title(f"rms {np.sqrt(np.mean(r**2)):.3g}, n = {n:,}")
+    ax2.set_title(f"rms {np.sqrt(np.mean(r**2)):.3g}, n = {n:,}", y=1.0)
     ax2.legend(handles=handles, loc="upper left", fontsize=6, handlelength=1.2)
     fig.text(0.01, 0.005, define, fontsize=6.5, color="0.3", ha="left", va="bottom")
     if title:
