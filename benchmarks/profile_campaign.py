@@ -32,7 +32,10 @@ from pathlib import Path
 #: (outermost) frame that matches one of these decides, except that an import or numba's
 #: loading of a compiled kernel anywhere in the stack decides first
 CATEGORIES = (
-    ("budget", ("/campaign/budget", "campaign_budget", "budget_fields")),
+    (
+        "budget",
+        ("/campaign/budget", "/campaign/cornell_budget", "campaign_budget", "budget_fields"),
+    ),
     ("fit", ("/gonio/fit/",)),
     ("plots", ("/gonio/plots/", "/matplotlib/", "plot_worker.py:warm_matplotlib")),
     ("lens calibration", ("/calibration/lens.py", "calibrate.py:_lens_job")),
