@@ -741,7 +741,10 @@ def _stages(
 ) -> dict[str, Any]:  # fmt: skip
     """Stages 2-4 of :func:`run_cornell_campaign` (measure, correct, fit, report)."""
     material = setup.material
-    with CampaignExecutor(1) as ex, ex.blas():  # BLAS on one thread, stage timings
+    drawn = setup.out is not None and fit
+    # BLAS on one thread, stage timings, and the figures drawn in a process of their own
+    # (it loads matplotlib while this one measures)
+    with CampaignExecutor(1, plots=drawn, plot_process=True) as ex, ex.blas():
         ex.timings["plan"] = t_plan
         if not quiet:
             how = "through the drivers on the fake devices" if through_drivers else "in-process"
@@ -778,6 +781,8 @@ def _stages(
                     samples, material, fit_mode=fit_mode, residual=residual, config=setup.lab,
                     cone_corrections=cone_corrections, linear=fit_linear,
                 )  # fmt: skip
+            if drawn:  # drawn while the report is made
+                _draw_fit(ex, setup, samples, res_fit.model)
         ex.timings["total"] = ex.elapsed()
         # 4. report
         if fit:
@@ -790,43 +795,50 @@ def _stages(
                 "timings_s": {k: round(v, 4) for k, v in ex.timings.items()},
                 "seed": setup.seed, "noise": setup.noise, **extra,
             }  # fmt: skip
-    summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
-    if setup.out is not None and summary.get("budget"):
-        _draw_budget(setup, summary)
-    if setup.out is not None and fit:
-        _draw_fit(setup, summary, samples, res_fit.model)
+        summary["files"] = {"samples": "samples.csv", "fit": "fit.json"} if setup.out else {}
+        plots = []
+        if drawn and summary.get("budget") and _draw_budget(ex, setup, summary):
+            plots.append("plots/budget.png")
+        if drawn:
+            plots += [f"plots/{n}.png" for n in _FIT_PLOTS]
+            summary["files"]["plots"] = plots
+        ex.wait_plots()
     if setup.out is not None:
         _write_json(setup.out / "summary.json", summary)
     summary["_samples"] = samples  # in-memory only (dropped from JSON by callers)
     return summary
 
 
-def _draw_budget(setup: _Setup, summary: dict[str, Any]) -> None:
+def _draw_budget(ex: CampaignExecutor, setup: _Setup, summary: dict[str, Any]) -> bool:
     """``plots/budget.png`` (:func:`gonio.campaign.report.draw_budget`, the LBL campaign's
-    figure) from the budget's figure view; listed in ``summary["files"]``."""
+    figure) from the budget's figure view, sent to the executor's plots; False when the
+    view has no parameter (nothing drawn)."""
     from gonio.campaign.cornell_budget import figure_view
     from gonio.campaign.report import draw_budget
 
     view = figure_view(summary["budget"], summary["fit"], setup.corrections)
     view["model"] = "li_torrance"  # the parameters' units
     if not view["params"]:
-        return
+        return False
     folder = setup.out / "plots"
     folder.mkdir(exist_ok=True)
-    draw_budget("budget", view, folder, f"{setup.material} (cornell)")
-    summary["files"]["plots"] = ["plots/budget.png"]
+    ex.plot(draw_budget, view, folder, f"{setup.material} (cornell)", each=["budget"])
+    return True
 
 
-def _draw_fit(setup: _Setup, summary: dict[str, Any], samples: BRDFSamples, model: Any) -> None:
+#: the figures of the data against the fit (:func:`_draw_fit`)
+_FIT_PLOTS = ("incidence_plane", "residuals")
+
+
+def _draw_fit(ex: CampaignExecutor, setup: _Setup, samples: BRDFSamples, model: Any) -> None:
     """``plots/incidence_plane.png`` and ``plots/residuals.png``: the data against the fit
-    (:func:`gonio.campaign.report.draw`, the LBL campaign's figures; three bands)."""
+    (:func:`gonio.campaign.report.draw`, the LBL campaign's figures; three bands), sent to
+    the executor's plots (both at once: in parallel forks of the plot process)."""
     from gonio.campaign.report import draw
 
     (setup.out / "plots").mkdir(exist_ok=True)
-    for name in ("incidence_plane", "residuals"):
-        draw(name, samples, model, setup.out / "plots", f"{setup.material} (cornell)")
-    done = summary["files"].setdefault("plots", [])
-    done += [f"plots/{n}.png" for n in ("incidence_plane", "residuals")]
+    ex.plot(draw, samples, model, setup.out / "plots", f"{setup.material} (cornell)",
+            each=_FIT_PLOTS)  # fmt: skip
 
 
 @dataclasses.dataclass

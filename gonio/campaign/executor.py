@@ -322,8 +322,12 @@ class CampaignExecutor:
         Processes for :meth:`map` (1: tasks run in this process, in order; more need the
         ``fork`` start method).
     plots : bool
-        Start a plot process (only with ``workers > 1``; otherwise :meth:`plot` draws here,
-        which costs no process start for a short campaign).
+        Start a plot process (by default only with ``workers > 1``; otherwise :meth:`plot`
+        draws here, which costs no process start for a short campaign).
+    plot_process : bool, optional
+        With ``plots``: whether the plots get their own process whatever ``workers`` (a
+        one-process campaign whose figures take a second: the Cornell campaign's); never on
+        a machine with one processor. Default: with ``workers > 1``.
 
     Notes
     -----
@@ -332,11 +336,14 @@ class CampaignExecutor:
     ``timings`` holds the seconds of every :meth:`stage`.
     """
 
-    def __init__(self, workers: int = 1, *, plots: bool = False) -> None:
+    def __init__(
+        self, workers: int = 1, *, plots: bool = False, plot_process: bool | None = None
+    ) -> None:
         if not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers {workers!r}: expected a positive integer")
         self.workers = workers
-        self.want_plots = plots
+        own = workers > 1 if plot_process is None else plot_process and (os.cpu_count() or 1) > 1
+        self.want_plots = plots and own
         self.timings: dict[str, float] = {}
         self.write_busy_s = 0.0
         self.t_start = time.perf_counter()
@@ -365,7 +372,7 @@ class CampaignExecutor:
         # later are limited before the first children fork: _limit_blas)
         stack.enter_context(threadpool_limits(limits=1, user_api="blas"))
         self._blas_modules = len(sys.modules)
-        if self.want_plots and self.workers > 1:
+        if self.want_plots:
             from gonio.campaign.plot_worker import PlotWorker, warm_matplotlib
 
             # forked first: it loads matplotlib while this process prepares the instrument

@@ -351,3 +351,25 @@ def test_a_numba_cache_entry_is_found_by_its_function(tmp_path, monkeypatch):
     k = numba.njit(cache=True)(kern_mod.twice)
     k.compile((numba.types.float64,))
     assert executor._in_numba_cache(k) and executor._in_numba_cache(kern_mod.twice)
+
+
+def _write_pid(name, folder):
+    (folder / f"{name}.pid").write_text(str(os.getpid()))
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="a plot process needs two processors")
+def test_a_one_worker_executor_draws_in_a_plot_process_only_when_asked(tmp_path):
+    """plot_process=True gives a one-worker campaign (the Cornell one) its plot process:
+    the plots are drawn in other processes, waited for by wait_plots; by default one worker
+    draws here."""
+    for own in (True, None):
+        folder = tmp_path / str(own)
+        folder.mkdir()
+        with executor.CampaignExecutor(1, plots=True, plot_process=own) as ex:
+            ex.plot(_write_pid, folder, each=["a", "b"])
+            ex.wait_plots()
+            pids = {int((folder / f"{n}.pid").read_text()) for n in ("a", "b")}
+        if own:
+            assert os.getpid() not in pids and len(pids) == 2  # two forks of the plot process
+        else:
+            assert pids == {os.getpid()}
