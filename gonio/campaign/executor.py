@@ -327,7 +327,8 @@ class CampaignExecutor:
     plot_process : bool, optional
         With ``plots``: whether the plots get their own process whatever ``workers`` (a
         one-process campaign whose figures take a second: the Cornell campaign's); never on
-        a machine with one processor. Default: with ``workers > 1``.
+        a machine with one processor or in a daemonic process (a ``multiprocessing.Pool``'s
+        or a Dask worker's, which may have no children). Default: with ``workers > 1``.
 
     Notes
     -----
@@ -342,7 +343,7 @@ class CampaignExecutor:
         if not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers {workers!r}: expected a positive integer")
         self.workers = workers
-        own = workers > 1 if plot_process is None else plot_process and (os.cpu_count() or 1) > 1
+        own = workers > 1 if plot_process is None else plot_process and _may_fork_plots()
         self.want_plots = plots and own
         self.timings: dict[str, float] = {}
         self.write_busy_s = 0.0
@@ -766,6 +767,14 @@ def _shutdown(pool: Any, *, stop: bool, cancel: bool | None = None) -> None:
             with contextlib.suppress(OSError):
                 proc.terminate()
     pool.shutdown(wait=True, cancel_futures=stop if cancel is None else cancel)
+
+
+def _may_fork_plots() -> bool:
+    """Whether a plot process of its own helps and may start here: more than one
+    processor, and not in a daemonic process (which may not have children)."""
+    import multiprocessing as mp
+
+    return (os.cpu_count() or 1) > 1 and not mp.current_process().daemon
 
 
 def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> int:

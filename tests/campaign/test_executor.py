@@ -373,3 +373,19 @@ def test_a_one_worker_executor_draws_in_a_plot_process_only_when_asked(tmp_path)
             assert os.getpid() not in pids and len(pids) == 2  # two forks of the plot process
         else:
             assert pids == {os.getpid()}
+
+
+def _one_worker_plots_here(folder):
+    with executor.CampaignExecutor(1, plots=True, plot_process=True) as ex:
+        ex.plot(_write_pid, folder, each=["d"])
+        ex.wait_plots()
+    return int((folder / "d.pid").read_text()) == os.getpid()
+
+
+def test_no_plot_process_in_a_daemonic_process(tmp_path):
+    """A daemonic process (a multiprocessing.Pool's worker) may have no children: the
+    one-worker campaign's plots are drawn there, not refused."""
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_one_worker_plots_here, (tmp_path,)) is True
