@@ -779,9 +779,14 @@ def _may_fork_plots() -> bool:
 
 def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> int:
     """Worker processes for ``n_tasks`` parallel tasks: the CPU count (at most ``most``) when
-    there are at least ``minimum_tasks`` and ``fork`` exists, else 1."""
+    there are at least ``minimum_tasks`` and ``fork`` exists, else 1 — also in a daemonic
+    process (a ``multiprocessing.Pool``'s or a Dask worker's), which may not start
+    processes (a campaign there with 8 angles or more stopped with "daemonic processes are
+    not allowed to have children")."""
     import multiprocessing as mp
 
     if n_tasks < minimum_tasks or "fork" not in mp.get_all_start_methods():
+        return 1
+    if mp.current_process().daemon:
         return 1
     return max(1, min(os.cpu_count() or 1, most))

@@ -389,3 +389,17 @@ def test_no_plot_process_in_a_daemonic_process(tmp_path):
 
     with mp.get_context("fork").Pool(1) as pool:
         assert pool.apply(_one_worker_plots_here, (tmp_path,)) is True
+
+
+def _default_workers_here():
+    return executor.default_workers(21)
+
+
+def test_default_workers_is_one_in_a_daemonic_process():
+    """A daemonic process may not start processes: a campaign of 21 angles run there (a
+    multiprocessing.Pool's or a Dask worker's) gets one worker, not a crash."""
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_default_workers_here) == 1
+    assert executor.default_workers(21) == min(os.cpu_count() or 1, 4)

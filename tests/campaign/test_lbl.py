@@ -369,3 +369,21 @@ def test_lamp_clock_follows_the_real_schedule():
     t_bg = inner.clock_s(None, math.radians(40.0), 0.0)
     t_meas = inner.clock_s(materials.get("rolled_brass"), 0.0, 0.0)
     assert 0.0 <= t_std < t_bg < t_meas  # standard sweep, background sweep, sample sweep
+
+
+def _workers_in_a_pool(workers):
+    from gonio.campaign.lbl import _n_workers
+
+    try:
+        return _n_workers(workers, campaign.Plan(), None)
+    except ValueError as exc:
+        return str(exc)
+
+
+def test_workers_in_a_daemonic_process_default_to_one_and_more_are_refused_clearly():
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.apply(_workers_in_a_pool, (None,)) == 1
+        said = pool.apply(_workers_in_a_pool, (2,))
+    assert "daemonic" in said and "workers=1" in said
