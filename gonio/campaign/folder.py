@@ -252,8 +252,9 @@ _FRAME = re.compile(r"[A-Za-z]+_\d+\.tif")
 _TMP = re.compile(r"\..+\.[A-Za-z0-9_]+\.tmp")
 
 
-#: A campaign's derived outputs (made from the raw groups; removed when a run starts or fails).
-OUTPUTS = ("samples.csv", "summary.json", "fit.json", "material.rad")
+#: A campaign's derived outputs (made from the raw groups; removed when a run starts or fails;
+#: ``samples.astm``: the Cornell campaign's ASTM E1392 table).
+OUTPUTS = ("samples.csv", "samples.astm", "summary.json", "fit.json", "material.rad")
 #: Its plots (``OUT/plots/NAME.png``, LBL and Cornell), also derived outputs.
 PLOT_NAMES = ("incidence_plane", "hemisphere", "residuals", "budget", "preview")
 #: Its Radiance function file (``OUT/gonio_MATERIAL.cal``, beside ``material.rad``).

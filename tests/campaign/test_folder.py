@@ -88,6 +88,7 @@ def test_a_failed_fit_leaves_no_derived_output(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="fit exploded"):
         cornell.run_cornell_campaign(out=tmp_path / "cornell", max_geometries=20)
     assert not (tmp_path / "cornell" / "samples.csv").exists()
+    assert not (tmp_path / "cornell" / "samples.astm").exists()  # (its ASTM table too)
 
 
 def test_refused_options_write_nothing(tmp_path, capsys):
