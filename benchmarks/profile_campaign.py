@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -168,12 +169,6 @@ def profile_once(gonio_args: list[str]) -> dict:
     return {"table": table, "processes": procs}
 
 
-def _median(xs: list[float]) -> float:
-    xs = sorted(xs)
-    n = len(xs)
-    return xs[n // 2] if n % 2 else 0.5 * (xs[n // 2 - 1] + xs[n // 2])
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=1, help="runs (the median of each cell)")
@@ -188,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     labels = [*LABELS, "Radiance (preview)"]
 
     def cell(kind: str, label: str) -> float:
-        return _median([r["table"].get(kind, {}).get(label, 0.0) for r in runs])
+        return statistics.median([r["table"].get(kind, {}).get(label, 0.0) for r in runs])
 
     procs = {k: max(r["processes"].get(k, 0) for r in runs) for k in kinds}
     head = ["what", *(f"{k} ({procs[k]})" for k in kinds), "total"]

@@ -62,6 +62,7 @@ from gonio.malloc import keep_freed
 __all__ = [
     "CampaignExecutor",
     "Job",
+    "check_workers_may_fork",
     "child_signals",
     "die_with_parent",
     "drain_writes",
@@ -342,6 +343,7 @@ class CampaignExecutor:
     ) -> None:
         if not isinstance(workers, int) or workers < 1:
             raise ValueError(f"workers {workers!r}: expected a positive integer")
+        check_workers_may_fork(workers)
         self.workers = workers
         own = workers > 1 if plot_process is None else plot_process and _may_fork_plots()
         self.want_plots = plots and own
@@ -769,12 +771,29 @@ def _shutdown(pool: Any, *, stop: bool, cancel: bool | None = None) -> None:
     pool.shutdown(wait=True, cancel_futures=stop if cancel is None else cancel)
 
 
+def _daemonic() -> bool:
+    """Whether this process is daemonic (a ``multiprocessing.Pool``'s or a Dask worker's):
+    it may not start processes ("daemonic processes are not allowed to have children")."""
+    import multiprocessing as mp
+
+    return bool(mp.current_process().daemon)
+
+
+def check_workers_may_fork(workers: int) -> None:
+    """Refuse ``workers > 1`` in a daemonic process (:func:`_daemonic`), naming the cause
+    and the remedy, before anything is prepared."""
+    if workers > 1 and _daemonic():
+        raise ValueError(
+            f"workers {workers}: this process is daemonic (a multiprocessing.Pool's "
+            "or a Dask worker's) and may not start worker processes; use workers=1 "
+            "or leave workers to its default"
+        )
+
+
 def _may_fork_plots() -> bool:
     """Whether a plot process of its own helps and may start here: more than one
     processor, and not in a daemonic process (which may not have children)."""
-    import multiprocessing as mp
-
-    return (os.cpu_count() or 1) > 1 and not mp.current_process().daemon
+    return (os.cpu_count() or 1) > 1 and not _daemonic()
 
 
 def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> int:
@@ -785,8 +804,6 @@ def default_workers(n_tasks: int, *, minimum_tasks: int = 8, most: int = 4) -> i
     not allowed to have children")."""
     import multiprocessing as mp
 
-    if n_tasks < minimum_tasks or "fork" not in mp.get_all_start_methods():
-        return 1
-    if mp.current_process().daemon:
+    if n_tasks < minimum_tasks or "fork" not in mp.get_all_start_methods() or _daemonic():
         return 1
     return max(1, min(os.cpu_count() or 1, most))

@@ -55,6 +55,7 @@ from gonio.campaign import folder as results
 from gonio.campaign.executor import (
     CampaignExecutor,
     Job,
+    check_workers_may_fork,
     default_workers,
     worker_state,
     write_behind,
@@ -443,15 +444,8 @@ def _n_workers(workers: int | None, plan: Plan, instrument: Any) -> int:
 
         if not isinstance(workers, int | np.integer) or not 1 <= workers <= max_workers():
             raise ValueError(f"workers {workers!r}: expected an integer in [1, {max_workers()}]")
-        if workers > 1 and instrument is None:
-            import multiprocessing as mp
-
-            if mp.current_process().daemon:
-                raise ValueError(
-                    f"workers {workers}: this process is daemonic (a multiprocessing.Pool's "
-                    "or a Dask worker's) and may not start worker processes; use workers=1 "
-                    "or leave workers to its default"
-                )
+        if instrument is None:
+            check_workers_may_fork(int(workers))
         return int(workers) if instrument is None else 1
     if instrument is not None:
         return 1
